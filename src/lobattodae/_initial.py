@@ -1,0 +1,195 @@
+"""Eager validation of a problem and its initial values (run once, outside jit)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._errors import (
+    InconsistentInitialValuesError,
+    ShapeError,
+    SingularConstraintError,
+)
+from ._problem import constraint_lambda_jacobian, hidden_constraint
+
+__all__ = ["validate_initial_values", "check_float64"]
+
+#: Default tolerance for ``‖φ(t0, q0, p0)‖∞`` and for the hidden-constraint residual of a
+#: given λ0, relative to the size of the data.
+CONSISTENCY_TOL = 1e-10
+#: ``D_pφ D_λg`` counts as singular when its reciprocal condition number is below this.
+SINGULAR_RCOND = 1e-12
+_LAMBDA_NEWTON_ITERATIONS = 20
+
+
+def check_float64() -> None:
+    if not jax.config.jax_enable_x64:
+        raise RuntimeError(
+            "lobattodae computes in float64, but JAX's float64 support has been switched off "
+            "(jax_enable_x64=False) after lobattodae was imported. Re-enable it with "
+            "jax.config.update('jax_enable_x64', True)."
+        )
+
+
+def as_vector(x: Any, name: str) -> np.ndarray:
+    """Convert an initial value to a finite float64 1-D array, or raise a clear error."""
+    arr = np.asarray(x)
+    if arr.dtype == object or not (
+        np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
+    ):
+        raise ShapeError(f"{name} must be a real numeric array; got dtype {arr.dtype}.")
+    if arr.ndim != 1:
+        raise ShapeError(
+            f"{name} must be a 1-D array of shape (n,); got shape {arr.shape}. "
+            "For many initial values at once use jax.vmap over lobattodae.integrate."
+        )
+    arr = arr.astype(np.float64)
+    if not np.all(np.isfinite(arr)):
+        raise ShapeError(f"{name} contains non-finite values (NaN or inf): {arr}.")
+    return arr
+
+
+def _call(fn, name: str, expected: tuple[int, ...] | None, *a):
+    try:
+        out = fn(*a)
+    except Exception as exc:  # re-raised with context: the user's function failed
+        raise ShapeError(f"calling {name} at the initial point raised {type(exc).__name__}: {exc}") from exc
+    out = jnp.asarray(out)
+    if expected is not None and out.shape != expected:
+        raise ShapeError(f"{name} must return an array of shape {expected}; it returned shape {out.shape}.")
+    if not jnp.issubdtype(out.dtype, jnp.floating):
+        raise ShapeError(f"{name} must return floating-point values; it returned dtype {out.dtype}.")
+    if out.dtype != jnp.float64:
+        raise ShapeError(
+            f"{name} returned {out.dtype}, not float64: lobattodae computes in float64; "
+            "do not cast to float32 inside the problem functions."
+        )
+    return out
+
+
+def validate_initial_values(
+    problem,
+    t0: float,
+    q0,
+    p0,
+    lam0=None,
+    args: Any = None,
+    *,
+    project: bool = False,
+    tol: float = CONSISTENCY_TOL,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Check shapes and consistency of ``(q0, p0, λ0)``; compute λ0 if it is not given.
+
+    Returns float64 arrays ``(q0, p0, lam0)``. ``project=True`` replaces ``p0`` by the
+    nearest (least-squares) ``p`` with ``φ(t0, q0, p) = 0`` instead of raising.
+
+    Raises
+    ------
+    ShapeError, InconsistentInitialValuesError, SingularConstraintError
+    """
+    for attr in ("f", "g", "phi"):
+        if not callable(getattr(problem, attr, None)):
+            raise TypeError(
+                f"problem must provide f, g and phi (a PartitionedDAE, NonholonomicSystem or "
+                f"MechanicalSystem); {type(problem).__name__} has no callable '{attr}'."
+            )
+    q0 = as_vector(q0, "q0")
+    p0 = as_vector(p0, "p0")
+    n = q0.shape[0]
+    if p0.shape != q0.shape:
+        raise ShapeError(f"q0 and p0 must have the same shape (n,); got {q0.shape} and {p0.shape}.")
+    t0j = jnp.asarray(t0, jnp.float64)
+    phi0 = _call(problem.phi, "phi(t, q, p, args)", None, t0j, jnp.asarray(q0), jnp.asarray(p0), args)
+    if phi0.ndim != 1 or phi0.shape[0] < 1:
+        raise ShapeError(f"phi(t, q, p, args) must return a 1-D array of shape (m,), m ≥ 1; got shape {phi0.shape}.")
+    m = phi0.shape[0]
+    if m > n:
+        raise ShapeError(f"there are more constraints (m={m}) than degrees of freedom (n={n}).")
+    _call(problem.f, "f(t, q, p, args)", (n,), t0j, jnp.asarray(q0), jnp.asarray(p0), args)
+    if lam0 is not None:
+        lam0 = as_vector(lam0, "lam0")
+        if lam0.shape != (m,):
+            raise ShapeError(f"lam0 must have shape (m,) = ({m},) to match phi; got {lam0.shape}.")
+    lam_start = jnp.zeros(m) if lam0 is None else jnp.asarray(lam0)
+    _call(problem.g, "g(t, q, p, lam, args)", (n,), t0j, jnp.asarray(q0), jnp.asarray(p0), lam_start, args)
+
+    scale = 1.0 + float(np.max(np.abs(p0))) + float(np.max(np.abs(q0)))
+    phi_norm = float(jnp.max(jnp.abs(phi0)))
+    if not phi_norm <= tol * scale:
+        if not project:
+            raise InconsistentInitialValuesError(
+                f"the initial values violate the constraint: ‖φ(t0, q0, p0)‖∞ = {phi_norm:.3e} "
+                f"> {tol:.1e}·(1 + ‖q0‖∞ + ‖p0‖∞). Fix q0/p0 so that φ = 0, or pass "
+                "project_initial=True to project p0 onto the constraint."
+            )
+        p0 = _project_momenta(problem, t0j, q0, p0, args, tol * scale)
+
+    jac = np.asarray(constraint_lambda_jacobian(problem, t0j, jnp.asarray(q0), jnp.asarray(p0), lam_start, args))
+    _check_nonsingular(jac)
+
+    if lam0 is None:
+        lam = lam_start
+        for _ in range(_LAMBDA_NEWTON_ITERATIONS):
+            r = hidden_constraint(problem, t0j, jnp.asarray(q0), jnp.asarray(p0), lam, args)
+            j = constraint_lambda_jacobian(problem, t0j, jnp.asarray(q0), jnp.asarray(p0), lam, args)
+            dlam = jnp.linalg.solve(j, r)
+            lam = lam - dlam
+            if float(jnp.max(jnp.abs(dlam))) <= 1e-15 * (1.0 + float(jnp.max(jnp.abs(lam)))):
+                break
+        lam0 = np.asarray(lam)
+        if not np.all(np.isfinite(lam0)):
+            raise InconsistentInitialValuesError(
+                "could not compute a consistent λ0 from the hidden constraint (non-finite result)."
+            )
+    else:
+        r = hidden_constraint(problem, t0j, jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0), args)
+        rn = float(jnp.max(jnp.abs(r)))
+        jscale = 1.0 + float(np.max(np.abs(jac))) * (1.0 + float(np.max(np.abs(lam0))))
+        if not rn <= tol * jscale * scale:
+            dl = np.linalg.solve(jac, np.asarray(r))
+            raise InconsistentInitialValuesError(
+                f"the given lam0 violates the hidden constraint d/dt φ = 0: residual {rn:.3e}. "
+                f"The consistent value is lam0 = {np.asarray(lam0) - dl} "
+                "(omit lam0 to have it computed)."
+            )
+    return q0, np.asarray(p0, np.float64), np.asarray(lam0, np.float64)
+
+
+def _check_nonsingular(jac: np.ndarray) -> None:
+    m = jac.shape[0]
+    if not np.all(np.isfinite(jac)):
+        raise SingularConstraintError(
+            f"D_pφ·D_λg is not finite at the initial point:\n{jac}\nCheck the problem functions."
+        )
+    sv = np.linalg.svd(jac, compute_uv=False)
+    rcond = sv[-1] / sv[0] if sv[0] > 0 else 0.0
+    if not rcond > SINGULAR_RCOND or math.isclose(sv[0], 0.0):
+        raise SingularConstraintError(
+            f"D_pφ·D_λg ({m}×{m}) is singular at the initial point (reciprocal condition number "
+            f"{rcond:.1e}): the problem is not an index-2 DAE there. A holonomic constraint "
+            "ψ(q) = 0 must be differentiated once, φ = D_qψ(q)·f(q, p), and independent "
+            "constraints must not be repeated."
+        )
+
+
+def _project_momenta(problem, t0, q0, p0, args, tol):
+    """Least-squares projection of p0 onto {p : φ(t0, q0, p) = 0} (Gauss-Newton)."""
+    p = jnp.asarray(p0)
+    q = jnp.asarray(q0)
+    for _ in range(20):
+        r = problem.phi(t0, q, p, args)
+        if float(jnp.max(jnp.abs(r))) <= 1e-3 * tol:
+            break
+        jp = jax.jacfwd(lambda pp: problem.phi(t0, q, pp, args))(p)
+        p = p - jp.T @ jnp.linalg.solve(jp @ jp.T, r)
+    r = float(jnp.max(jnp.abs(problem.phi(t0, q, p, args))))
+    if not r <= tol:
+        raise InconsistentInitialValuesError(
+            f"projecting p0 onto the constraint failed (remaining ‖φ‖∞ = {r:.3e}); "
+            "check that φ can be satisfied at q0."
+        )
+    return np.asarray(p)

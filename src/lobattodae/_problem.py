@@ -1,0 +1,171 @@
+"""Problem definitions: partitioned index-2 DAEs and nonholonomic Hamiltonian systems.
+
+All user functions are pure JAX functions of ``(t, q, p[, lam], args)`` returning arrays.
+Problems are immutable and hashed by identity, so they can be passed as static arguments
+to ``jax.jit``: compiled code is cached per problem object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+
+__all__ = [
+    "PartitionedDAE",
+    "NonholonomicSystem",
+    "MechanicalSystem",
+    "hidden_constraint",
+    "consistent_lambda",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class PartitionedDAE:
+    r"""A partitioned index-2 differential-algebraic equation
+
+    .. math::
+
+        q' = f(t, q, p), \qquad p' = g(t, q, p, λ), \qquad 0 = φ(t, q, p),
+
+    with :math:`q, p ∈ R^n`, :math:`λ ∈ R^m` and :math:`D_p φ \, D_λ g` (m×m) invertible.
+
+    Parameters
+    ----------
+    f : callable
+        ``f(t, q, p, args) -> (n,)``.
+    g : callable
+        ``g(t, q, p, lam, args) -> (n,)``.
+    phi : callable
+        ``phi(t, q, p, args) -> (m,)``.
+    name : str, optional
+        Used in messages and plots.
+    """
+
+    f: Callable[..., Any]
+    g: Callable[..., Any]
+    phi: Callable[..., Any]
+    name: str = "PartitionedDAE"
+
+
+class _HamiltonianMixin:
+    r"""f, g, φ of a nonholonomic Hamiltonian system with linear constraints μ(q) q' = 0:
+
+    .. math::
+
+        f = ∂H/∂p, \qquad g = -∂H/∂q + μ(q)^T λ, \qquad φ = μ(q) \, ∂H/∂p.
+    """
+
+    def hamiltonian(self, t, q, p, args):  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def constraint_matrix(self, t, q, args):  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def energy(self, t, q, p, args=None):
+        """The Hamiltonian H(t, q, p) (the energy for mechanical systems)."""
+        return self.hamiltonian(t, q, p, args)
+
+    def f(self, t, q, p, args):
+        return jax.grad(self.hamiltonian, argnums=2)(t, q, p, args)
+
+    def g(self, t, q, p, lam, args):
+        dh_dq = jax.grad(self.hamiltonian, argnums=1)(t, q, p, args)
+        mu = self.constraint_matrix(t, q, args)
+        return -dh_dq + mu.T @ lam
+
+    def phi(self, t, q, p, args):
+        return self.constraint_matrix(t, q, args) @ self.f(t, q, p, args)
+
+
+@dataclass(frozen=True, eq=False)
+class NonholonomicSystem(_HamiltonianMixin):
+    r"""A nonholonomic Hamiltonian system with constraints linear in the velocities.
+
+    .. math::
+
+        q' = ∂H/∂p, \qquad p' = -∂H/∂q + μ(q)^T λ, \qquad 0 = φ = μ(q)\, ∂H/∂p,
+
+    built from the Hamiltonian and the constraint matrix by automatic differentiation.
+
+    Parameters
+    ----------
+    hamiltonian : callable
+        ``H(t, q, p, args) -> scalar``.
+    constraint_matrix : callable
+        ``mu(t, q, args) -> (m, n)``; the constraints are ``mu(t, q) q' = 0``.
+    name : str, optional
+    """
+
+    hamiltonian: Callable[..., Any]
+    constraint_matrix: Callable[..., Any]
+    name: str = "NonholonomicSystem"
+
+
+@dataclass(frozen=True, eq=False)
+class MechanicalSystem(_HamiltonianMixin):
+    r"""A mechanical system ``H = ½ pᵀ M(q)⁻¹ p + V(q)`` with constraints ``μ(q) q' = 0``.
+
+    ``q' = M(q)⁻¹ p`` is computed by a linear solve (no autodiff), and
+    ``D_p φ · D_λ g = μ M⁻¹ μᵀ``.
+
+    Parameters
+    ----------
+    mass_matrix : callable
+        ``M(t, q, args) -> (n, n)``, symmetric positive definite.
+    potential : callable
+        ``V(t, q, args) -> scalar``.
+    constraint_matrix : callable
+        ``mu(t, q, args) -> (m, n)``.
+    name : str, optional
+    """
+
+    mass_matrix: Callable[..., Any]
+    potential: Callable[..., Any]
+    constraint_matrix: Callable[..., Any]
+    name: str = "MechanicalSystem"
+
+    def hamiltonian(self, t, q, p, args):
+        v = jnp.linalg.solve(self.mass_matrix(t, q, args), p)
+        return 0.5 * jnp.dot(p, v) + self.potential(t, q, args)
+
+    def f(self, t, q, p, args):
+        return jnp.linalg.solve(self.mass_matrix(t, q, args), p)
+
+
+def hidden_constraint(problem, t, q, p, lam, args=None):
+    r"""The hidden constraint ``d/dt φ = φ_t + φ_q f + φ_p g(λ)`` at ``(t, q, p, λ)``.
+
+    Consistent initial values satisfy ``φ = 0`` and this ``= 0``.
+    """
+    t = jnp.asarray(t, dtype=q.dtype)
+    dq = problem.f(t, q, p, args)
+    dp = problem.g(t, q, p, lam, args)
+    _, dphi = jax.jvp(
+        lambda tt, qq, pp: problem.phi(tt, qq, pp, args),
+        (t, q, p),
+        (jnp.ones_like(t), dq, dp),
+    )
+    return dphi
+
+
+def constraint_lambda_jacobian(problem, t, q, p, lam, args=None):
+    """``D_p φ · D_λ g`` (m×m) at ``(t, q, p, λ)``; invertible for an index-2 problem."""
+    return jax.jacfwd(lambda ll: hidden_constraint(problem, t, q, p, ll, args))(lam)
+
+
+def consistent_lambda(problem, t, q, p, lam_guess, args=None, iterations=3):
+    r"""Solve the hidden constraint for λ by Newton's method (pure, jit/vmap-able).
+
+    ``g`` is affine in λ for every nonholonomic system, so one iteration is exact there;
+    ``iterations`` Newton steps are taken for general problems.
+    """
+
+    def body(_, lam):
+        r = hidden_constraint(problem, t, q, p, lam, args)
+        jac = constraint_lambda_jacobian(problem, t, q, p, lam, args)
+        return lam - jnp.linalg.solve(jac, r)
+
+    return jax.lax.fori_loop(0, iterations, body, lam_guess)

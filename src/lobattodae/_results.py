@@ -1,0 +1,43 @@
+"""Result codes of the Newton solve and of a whole integration.
+
+Codes are small integers so that they can live inside compiled loops; each has a
+user-facing message.
+"""
+
+from __future__ import annotations
+
+import enum
+
+__all__ = ["Result"]
+
+
+class Result(enum.IntEnum):
+    """Outcome of a step (and of a solve: the first non-successful step's code)."""
+
+    SUCCESSFUL = 0
+    MAX_ITERATIONS = 1
+    DIVERGED = 2
+    NONFINITE = 3
+    INTERRUPTED = 4
+
+    @property
+    def message(self) -> str:
+        return _MESSAGES[self]
+
+
+_MESSAGES = {
+    Result.SUCCESSFUL: "The solver successfully reached the end of the integration interval.",
+    Result.MAX_ITERATIONS: (
+        "Newton's method did not converge within the iteration limit "
+        "(try a smaller step size or a larger max_iterations)."
+    ),
+    Result.DIVERGED: (
+        "Newton's method diverged (the iteration stopped contracting); "
+        "try a smaller step size."
+    ),
+    Result.NONFINITE: (
+        "Non-finite values (NaN/inf) appeared in the stage equations or their Jacobian; "
+        "the step is too large for the problem or the problem functions overflow."
+    ),
+    Result.INTERRUPTED: "The integration was interrupted; the computed prefix is returned.",
+}

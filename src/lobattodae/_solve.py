@@ -1,0 +1,361 @@
+"""``solve``: integrate a partitioned index-2 DAE over an interval with a constant step."""
+
+from __future__ import annotations
+
+import functools
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._errors import LobattoDAEInputError, NewtonFailure
+from ._initial import check_float64, validate_initial_values
+from ._results import Result
+from ._stepper import LobattoIIIAIIIB, StepperState
+
+__all__ = ["Solution", "solve", "integrate"]
+
+#: Longest compiled chunk of steps; longer runs loop over chunks (one compile per chunk
+#: length, a power of two, so a convergence study compiles only a handful of times).
+MAX_CHUNK = 4096
+_MIN_CHUNK = 16
+#: Status code of a step that was not taken (past the end, or after a failure).
+_SKIPPED = -1
+
+
+class _Carry(NamedTuple):
+    q: jax.Array
+    p: jax.Array
+    lam: jax.Array
+    state: StepperState
+    failed: jax.Array
+
+
+class _StepOut(NamedTuple):
+    q: jax.Array
+    p: jax.Array
+    lam: jax.Array
+    result: jax.Array
+    iterations: jax.Array
+    residual_norm: jax.Array
+    n_jacobians: jax.Array
+    constraint: jax.Array
+
+
+def _scan_steps(problem, method: LobattoIIIAIIIB, length: int, k0, n_total, t0, h, carry: _Carry, args):
+    """``length`` steps with ``lax.scan``; steps with index ≥ n_total, or after a failure, are skipped."""
+
+    def take(k, c: _Carry):
+        t = t0 + k * h
+        q1, p1, lam1, info, st = method.step(problem, t, c.q, c.p, c.lam, h, args, c.state)
+        cons = jnp.max(jnp.abs(problem.phi(t0 + (k + 1) * h, q1, p1, args)))
+        ok = info.result == Result.SUCCESSFUL
+        new = _Carry(
+            jnp.where(ok, q1, c.q), jnp.where(ok, p1, c.p), jnp.where(ok, lam1, c.lam),
+            jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), st, c.state),
+            ~ok,
+        )
+        out = _StepOut(q1, p1, lam1, info.result, info.iterations, info.residual_norm, info.n_jacobians, cons)
+        return new, out
+
+    def skip(k, c: _Carry):
+        nan = jnp.full_like(c.q, jnp.nan)
+        out = _StepOut(
+            nan, jnp.full_like(c.p, jnp.nan), jnp.full_like(c.lam, jnp.nan),
+            jnp.asarray(_SKIPPED, jnp.int32), jnp.asarray(0, jnp.int32),
+            jnp.asarray(jnp.nan, c.q.dtype), jnp.asarray(0, jnp.int32), jnp.asarray(jnp.nan, c.q.dtype),
+        )
+        return c, out
+
+    def body(c: _Carry, j):
+        k = k0 + j
+        active = jnp.logical_and(k < n_total, ~c.failed)
+        return jax.lax.cond(active, take, skip, k.astype(t0.dtype), c)
+
+    return jax.lax.scan(body, carry, jnp.arange(length))
+
+
+@functools.partial(jax.jit, static_argnames=("problem", "method", "length"))
+def _run_chunk(problem, method, length, k0, n_total, t0, h, carry, args):
+    return _scan_steps(problem, method, length, k0, n_total, t0, h, carry, args)
+
+
+def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam0, args=None):
+    """Pure, jit/vmap-able integration of ``n_steps`` steps of size ``h`` (no input checks).
+
+    The building block of :func:`solve` for batched use: ``jax.vmap(integrate, ...)`` over
+    initial values or ``args``. The initial values must be consistent (see
+    :func:`consistent_lambda`); nothing is validated here.
+
+    Returns
+    -------
+    q, p, lam : jax.Array
+        Time-major, shapes ``(n_steps + 1, n)``, ``(n_steps + 1, n)``, ``(n_steps + 1, m)``.
+        After a failed step the remaining rows are NaN.
+    status : jax.Array
+        ``Result`` code of the integration (0 on success, else the first failure's code).
+    """
+    q0 = jnp.asarray(q0, jnp.float64)
+    p0 = jnp.asarray(p0, jnp.float64)
+    lam0 = jnp.asarray(lam0, jnp.float64)
+    t0 = jnp.asarray(t0, jnp.float64)
+    h = jnp.asarray(h, jnp.float64)
+    carry = _Carry(q0, p0, lam0, method.init(q0, p0, lam0), jnp.asarray(False))
+    _, out = _scan_steps(problem, method, n_steps, jnp.asarray(0), n_steps, t0, h, carry, args)
+    codes = out.result
+    failed = codes > 0
+    status = jnp.where(jnp.any(failed), codes[jnp.argmax(failed)], 0)
+    q = jnp.concatenate([q0[None], out.q])
+    p = jnp.concatenate([p0[None], out.p])
+    lam = jnp.concatenate([lam0[None], out.lam])
+    return q, p, lam, status
+
+
+@dataclass(frozen=True, eq=False)
+class Solution:
+    """The result of :func:`solve` (time-major NumPy arrays).
+
+    Attributes
+    ----------
+    t : ndarray, shape (N+1,)
+    q, p : ndarray, shape (N+1, n)
+    lam : ndarray, shape (N+1, m)
+        The multiplier λ_k at t_k (λ_0 is the consistent initial value).
+    success : bool
+    status : Result
+        ``Result.SUCCESSFUL`` or the reason the integration stopped early.
+    message : str
+    stats : dict
+        ``newton_iterations (N,)``, ``residual_norm (N,)`` (max-norm of the last Newton
+        residual), ``constraint_residual (N+1,)`` (‖φ(t_k, q_k, p_k)‖∞), ``n_jacobians``
+        (total), ``h``, ``n_steps``, ``failed_step`` (or None), ``compile_and_run_time``.
+        When the solve stopped early the arrays hold the computed prefix only.
+    problem, method, args
+        What was solved, for diagnostics.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    p: np.ndarray
+    lam: np.ndarray
+    success: bool
+    status: Result
+    message: str
+    stats: dict = field(repr=False)
+    problem: Any = field(repr=False, default=None)
+    method: Any = field(repr=False, default=None)
+    args: Any = field(repr=False, default=None)
+
+    def __repr__(self) -> str:
+        return (
+            f"Solution(success={self.success}, status={self.status.name}, n_steps={len(self.t) - 1}, "
+            f"t=[{self.t[0]:g}, {self.t[-1]:g}], max constraint residual="
+            f"{np.max(self.stats['constraint_residual']):.2e})"
+        )
+
+
+def _step_count(t0: float, t1: float, n_steps, dt) -> tuple[int, float]:
+    if (n_steps is None) == (dt is None):
+        raise LobattoDAEInputError("give exactly one of n_steps (number of steps) or dt (step size).")
+    span = t1 - t0
+    if n_steps is not None:
+        if isinstance(n_steps, bool) or not isinstance(n_steps, (int, np.integer)):
+            raise LobattoDAEInputError(f"n_steps must be a positive integer; got {n_steps!r}.")
+        if n_steps <= 0:
+            raise LobattoDAEInputError(f"n_steps must be a positive integer; got n_steps={n_steps}.")
+        n = int(n_steps)
+    else:
+        dt = float(dt)
+        if not (math.isfinite(dt) and dt > 0):
+            raise LobattoDAEInputError(f"dt must be a positive finite step size; got dt={dt!r}.")
+        n = max(1, math.ceil(span / dt * (1 - 1e-12)))
+    return n, span / n
+
+
+def _check_t_span(t_span) -> tuple[float, float]:
+    try:
+        t0, t1 = (float(x) for x in t_span)
+    except (TypeError, ValueError):
+        raise LobattoDAEInputError(f"t_span must be a pair (t0, t1) of numbers; got {t_span!r}.") from None
+    if not (math.isfinite(t0) and math.isfinite(t1)):
+        raise LobattoDAEInputError(f"t_span must be finite; got {t_span!r}.")
+    if not t1 > t0:
+        raise LobattoDAEInputError(
+            f"t_span = ({t0}, {t1}) is empty or reversed; solve integrates forward and needs t1 > t0 "
+            "(for a step backwards use method.step with a negative h)."
+        )
+    return t0, t1
+
+
+def _chunk_length(n: int, chunk_size: int | None) -> int:
+    if chunk_size is not None:
+        if not (isinstance(chunk_size, int) and chunk_size >= 1):
+            raise LobattoDAEInputError(f"chunk_size must be a positive integer; got {chunk_size!r}.")
+        return chunk_size
+    return min(MAX_CHUNK, max(_MIN_CHUNK, 1 << (n - 1).bit_length()))
+
+
+def solve(
+    problem,
+    method: LobattoIIIAIIIB,
+    t_span,
+    q0,
+    p0,
+    *,
+    n_steps: int | None = None,
+    dt: float | None = None,
+    lam0=None,
+    args: Any = None,
+    throw: bool = True,
+    project_initial: bool = False,
+    chunk_size: int | None = None,
+    progress: bool | Callable[[int, int], None] = False,
+) -> Solution:
+    """Integrate a partitioned index-2 DAE from ``t_span[0]`` to ``t_span[1]``.
+
+    Parameters
+    ----------
+    problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+    method : LobattoIIIAIIIB
+    t_span : (float, float)
+        ``(t0, t1)`` with ``t1 > t0``.
+    q0, p0 : array_like, shape (n,)
+        Consistent initial values, ``φ(t0, q0, p0) = 0``.
+    n_steps, dt : int or float
+        Exactly one: the number of steps, or a maximal step size (the step used is
+        ``h = (t1 - t0) / ceil((t1 - t0) / dt)``, reported in ``stats["h"]``).
+    lam0 : array_like, shape (m,), optional
+        Initial multiplier. Computed from the hidden constraint when omitted; checked
+        against it when given.
+    args : pytree, optional
+        Passed to the problem functions.
+    throw : bool
+        If True (default) a failed step raises :class:`NewtonFailure`; otherwise the
+        computed prefix is returned with ``success=False`` and the status.
+    project_initial : bool
+        Project ``p0`` onto the constraint instead of rejecting inconsistent values.
+    chunk_size : int, optional
+        Steps per compiled chunk (default: the next power of two ≥ n_steps, at most 4096).
+    progress : bool or callable
+        ``True`` prints a progress bar to stderr; a callable is called as
+        ``progress(steps_done, n_steps)`` after each chunk. Ctrl-C between chunks returns the
+        computed prefix with status ``INTERRUPTED``.
+
+    Returns
+    -------
+    Solution
+    """
+    check_float64()
+    if not isinstance(method, LobattoIIIAIIIB):
+        raise TypeError(
+            f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3); got {method!r}."
+        )
+    t0, t1 = _check_t_span(t_span)
+    n, h = _step_count(t0, t1, n_steps, dt)
+    q0, p0, lam0 = validate_initial_values(problem, t0, q0, p0, lam0, args, project=project_initial)
+    length = _chunk_length(n, chunk_size)
+    report = _progress_reporter(progress)
+
+    q0j, p0j, lam0j = jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0)
+    carry = _Carry(q0j, p0j, lam0j, method.init(q0j, p0j, lam0j), jnp.asarray(False))
+    outs: list[_StepOut] = []
+    interrupted = False
+    start = time.perf_counter()
+    t0j, hj = jnp.asarray(t0), jnp.asarray(h)
+    done = 0
+    try:
+        while done < n:
+            carry, out = _run_chunk(problem, method, length, jnp.asarray(done), n, t0j, hj, carry, args)
+            out = jax.tree_util.tree_map(np.asarray, out)
+            outs.append(out)
+            done += length
+            if report is not None:
+                report(min(done, n), n)
+            if bool(carry.failed):
+                break
+    except KeyboardInterrupt:
+        interrupted = True
+    elapsed = time.perf_counter() - start
+    return _assemble(problem, method, args, t0, t1, h, n, q0, p0, lam0, outs, interrupted, throw, elapsed)
+
+
+def _assemble(problem, method, args, t0, t1, h, n, q0, p0, lam0, outs, interrupted, throw, elapsed) -> Solution:
+    if outs:
+        out = _StepOut(*(np.concatenate(xs)[:n] for xs in zip(*outs)))
+    else:
+        out = _StepOut(
+            np.zeros((0, q0.size)), np.zeros((0, p0.size)), np.zeros((0, lam0.size)),
+            np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0), np.zeros(0, np.int32), np.zeros(0),
+        )
+    codes = out.result
+    taken = codes != _SKIPPED
+    failed_idx = np.flatnonzero(codes > 0)
+    failed_step = int(failed_idx[0]) if failed_idx.size else None
+    n_ok = failed_step if failed_step is not None else int(np.sum(taken))
+    # Non-finite values reported as success would be a bug upstream; never let them through.
+    good = slice(0, n_ok)
+    bad = ~(np.all(np.isfinite(out.q[good]), axis=1) & np.all(np.isfinite(out.p[good]), axis=1)
+            & np.all(np.isfinite(out.lam[good]), axis=1))
+    if np.any(bad):
+        first = int(np.flatnonzero(bad)[0])
+        failed_step, n_ok = first, first
+        status = Result.NONFINITE
+    elif failed_step is not None:
+        status = Result(int(codes[failed_step]))
+    elif n_ok < n:
+        status = Result.INTERRUPTED if interrupted else Result.SUCCESSFUL
+    else:
+        status = Result.SUCCESSFUL
+    tk = t0 + np.arange(n_ok + 1) * h
+    if n_ok == n:
+        tk[-1] = t1
+    q = np.vstack([q0[None], out.q[:n_ok]])
+    p = np.vstack([p0[None], out.p[:n_ok]])
+    lam = np.vstack([lam0[None], out.lam[:n_ok]])
+    phi0 = float(np.max(np.abs(np.asarray(problem.phi(jnp.asarray(t0), jnp.asarray(q0), jnp.asarray(p0), args)))))
+    stats = {
+        "newton_iterations": out.iterations[:n_ok],
+        "residual_norm": out.residual_norm[:n_ok],
+        "constraint_residual": np.concatenate([[phi0], out.constraint[:n_ok]]),
+        "n_jacobians": int(np.sum(out.n_jacobians[:n_ok + (1 if failed_step is not None else 0)])),
+        "h": h,
+        "n_steps": n,
+        "failed_step": failed_step,
+        "compile_and_run_time": elapsed,
+    }
+    success = status == Result.SUCCESSFUL and n_ok == n
+    message = status.message
+    if failed_step is not None:
+        tf = t0 + failed_step * h
+        message = f"Step {failed_step} (t = {tf:.6g}, h = {h:.3g}) failed: {status.message}"
+        if throw:
+            raise NewtonFailure(message, step=failed_step, t=tf, reason=status.name.lower())
+    elif status == Result.INTERRUPTED:
+        message = f"Interrupted after {n_ok} of {n} steps (t = {tk[-1]:.6g}); the computed prefix is returned."
+    return Solution(tk, q, p, lam, bool(success), status, message, stats, problem, method, args)
+
+
+def _progress_reporter(progress):
+    if progress is False or progress is None:
+        return None
+    if callable(progress):
+        return progress
+    start = time.perf_counter()
+
+    def bar(done: int, total: int) -> None:
+        width = 30
+        frac = done / total
+        fill = int(width * frac)
+        el = time.perf_counter() - start
+        eta = el / frac * (1 - frac) if frac > 0 else float("nan")
+        sys.stderr.write(f"\r[{'#' * fill}{'.' * (width - fill)}] {done}/{total} steps  {el:6.1f}s  eta {eta:6.1f}s")
+        if done >= total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return bar

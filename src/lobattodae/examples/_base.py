@@ -1,0 +1,348 @@
+"""The :class:`Example` record and shared helpers for the example problems."""
+
+from __future__ import annotations
+
+import functools
+import math
+import types
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._problem import consistent_lambda, hidden_constraint
+
+__all__ = ["Example", "default_order", "COMPONENTS"]
+
+#: Solution components whose convergence orders are tracked.
+COMPONENTS = ("q", "p", "lam")
+
+#: The quadrature used for closed forms that need one (the Chaplygin sleigh's x, y):
+#: a composite Gauss-Legendre rule with this many nodes per panel (exact for polynomials of
+#: degree 39); panels are short compared with the distance to the nearest complex
+#: singularity of the integrand, so the rule is accurate to round-off.
+GAUSS_NODES = 20
+
+
+def default_order(component: str, s: int) -> int:
+    """The global order the theory promises for the s-stage Lobatto IIIA-IIIB pair.
+
+    ``q`` and ``p``: ``2s - 2``; ``lam``: ``s`` for even ``s``, ``s - 1`` for odd ``s``
+    (DESIGN.md, section 3).
+
+    Parameters
+    ----------
+    component : {"q", "p", "lam"}
+    s : int
+        Number of stages, ``s >= 2``.
+
+    Returns
+    -------
+    int
+    """
+    if component not in COMPONENTS:
+        raise ValueError(f"component must be one of {COMPONENTS}; got {component!r}")
+    if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 2:
+        raise ValueError(f"s must be an integer >= 2; got {s!r}")
+    s = int(s)
+    if component in ("q", "p"):
+        return 2 * s - 2
+    return s if s % 2 == 0 else s - 1
+
+
+def _vector(x: Any, name: str) -> np.ndarray:
+    a = np.array(x, dtype=np.float64)
+    if a.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D array; got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite; got {a}")
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Example:
+    """A test problem with consistent initial values, parameters, first integrals and,
+    where known, the exact solution.
+
+    Parameters
+    ----------
+    name : str
+        Registry name (CLI-friendly), e.g. ``"knife-edge"``.
+    problem : NonholonomicSystem or MechanicalSystem or PartitionedDAE
+        The DAE. The user functions read every physical parameter from ``args``, and the
+        problem object is shared by all examples of the same family, so one compiled
+        solver serves every parameter value.
+    t_span : tuple of float
+        ``(t0, t_end)``; every example starts at ``t0 = 0``.
+    q0, p0 : ndarray, shape (n,)
+        Initial values with ``φ(t0, q0, p0) = 0``.
+    lam0 : ndarray, shape (m,)
+        Consistent multiplier: the hidden constraint holds at ``(t0, q0, p0, lam0)``.
+    args : pytree
+        Parameters passed as ``args`` to the problem functions (a NamedTuple of floats).
+    invariants : Mapping[str, callable]
+        First integrals ``I(t, q, p, args) -> scalar`` in ``jax.numpy`` (vmappable over a
+        trajectory); always contains ``"energy"``.
+    exact : callable or None
+        ``exact(t) -> (q, p, lam)``. For an array ``t`` of shape ``(N,)`` the results are
+        time-major NumPy arrays of shapes ``(N, n)``, ``(N, n)``, ``(N, m)``; for a scalar
+        ``t`` they are 1-D. ``None`` where no closed form is known.
+    description : str
+        One line, for listings.
+    notes : str
+        Free-form remarks (known superconvergence, suitable uses).
+    expected_order_overrides : Mapping[str, Mapping[int, float or None]]
+        Known deviations from :func:`default_order`, per component (``"q"``, ``"p"``,
+        ``"lam"``) and number of stages ``s``: a number is the (higher) order observed,
+        ``None`` means the component is exact up to round-off for that ``s`` (no order can
+        be measured). Only cases that were checked are listed.
+    """
+
+    name: str
+    problem: Any
+    t_span: tuple[float, float]
+    q0: np.ndarray
+    p0: np.ndarray
+    lam0: np.ndarray
+    args: Any
+    invariants: Mapping[str, Callable[..., Any]]
+    exact: Callable[[Any], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+    description: str = ""
+    notes: str = ""
+    expected_order_overrides: Mapping[str, Mapping[int, float | None]] = field(
+        default_factory=dict
+    )
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"name must be a non-empty string; got {self.name!r}")
+        for attr in ("f", "g", "phi"):
+            if not callable(getattr(self.problem, attr, None)):
+                raise TypeError(
+                    f"Example {self.name!r}: problem must define f, g and phi "
+                    f"(a PartitionedDAE, NonholonomicSystem or MechanicalSystem); got "
+                    f"{type(self.problem).__name__}"
+                )
+        try:
+            t0, t1 = (float(v) for v in self.t_span)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"Example {self.name!r}: t_span must be a pair of floats; got {self.t_span!r}"
+            ) from None
+        if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
+            raise ValueError(
+                f"Example {self.name!r}: t_span must be finite with t_end > t0; got {(t0, t1)}"
+            )
+        object.__setattr__(self, "t_span", (t0, t1))
+        q0 = _vector(self.q0, "q0")
+        p0 = _vector(self.p0, "p0")
+        lam0 = _vector(self.lam0, "lam0")
+        if q0.shape != p0.shape:
+            raise ValueError(
+                f"Example {self.name!r}: q0 and p0 must have the same shape; got "
+                f"{q0.shape} and {p0.shape}"
+            )
+        object.__setattr__(self, "q0", q0)
+        object.__setattr__(self, "p0", p0)
+        object.__setattr__(self, "lam0", lam0)
+        invariants = dict(self.invariants)
+        if "energy" not in invariants:
+            raise ValueError(f"Example {self.name!r}: invariants must contain 'energy'")
+        for key, fn in invariants.items():
+            if not callable(fn):
+                raise TypeError(f"Example {self.name!r}: invariant {key!r} is not callable")
+        object.__setattr__(self, "invariants", types.MappingProxyType(invariants))
+        if self.exact is not None and not callable(self.exact):
+            raise TypeError(f"Example {self.name!r}: exact must be callable or None")
+        overrides = {}
+        for comp, table in dict(self.expected_order_overrides).items():
+            if comp not in COMPONENTS:
+                raise ValueError(
+                    f"Example {self.name!r}: expected_order_overrides keys must be in "
+                    f"{COMPONENTS}; got {comp!r}"
+                )
+            checked = {}
+            for s, order in dict(table).items():
+                default_order(comp, s)  # validates s
+                if order is not None and not (isinstance(order, (int, float)) and order > 0):
+                    raise ValueError(
+                        f"Example {self.name!r}: order override for {comp}, s={s} must be "
+                        f"a positive number or None; got {order!r}"
+                    )
+                checked[int(s)] = order
+            overrides[comp] = types.MappingProxyType(checked)
+        object.__setattr__(
+            self, "expected_order_overrides", types.MappingProxyType(overrides)
+        )
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def n(self) -> int:
+        """Dimension of q and p."""
+        return int(self.q0.shape[0])
+
+    @property
+    def m(self) -> int:
+        """Number of constraints (dimension of λ)."""
+        return int(self.lam0.shape[0])
+
+    @property
+    def t0(self) -> float:
+        return self.t_span[0]
+
+    @property
+    def t_end(self) -> float:
+        return self.t_span[1]
+
+    @property
+    def has_exact(self) -> bool:
+        return self.exact is not None
+
+    # --------------------------------------------------------------------- methods
+    def expected_order(self, component: str, s: int) -> float | None:
+        """The order expected for ``component`` with the s-stage pair on this example.
+
+        :func:`default_order` unless ``expected_order_overrides`` says otherwise;
+        ``None`` means "exact up to round-off, no order measurable".
+        """
+        default = default_order(component, s)
+        table = self.expected_order_overrides.get(component, {})
+        return table.get(int(s), default)
+
+    def consistency_residuals(self) -> dict[str, float]:
+        """Max-norm residuals of ``φ(t0, q0, p0)`` and of the hidden constraint at
+        ``(t0, q0, p0, lam0)``, and the difference between ``lam0`` and
+        :func:`~lobattodae.consistent_lambda`."""
+        phi, hid, lam = _residuals(
+            self.problem,
+            jnp.asarray(self.t0, dtype=jnp.float64),
+            *(jnp.asarray(a, dtype=jnp.float64) for a in (self.q0, self.p0, self.lam0)),
+            self.args,
+        )
+        return {
+            "phi": float(jnp.max(jnp.abs(phi), initial=0.0)),
+            "hidden": float(jnp.max(jnp.abs(hid), initial=0.0)),
+            "lam0": float(jnp.max(jnp.abs(lam - self.lam0), initial=0.0)),
+        }
+
+    def invariant_values(self, t, q, p) -> dict[str, np.ndarray]:
+        """The first integrals along a trajectory (time-major ``q``, ``p`` of shape
+        ``(N, n)``, ``t`` of shape ``(N,)``), as NumPy arrays of shape ``(N,)``."""
+        t = jnp.asarray(t, dtype=jnp.float64)
+        q = jnp.asarray(q, dtype=jnp.float64)
+        p = jnp.asarray(p, dtype=jnp.float64)
+        out = {}
+        for key, fn in self.invariants.items():
+            vf = jax.vmap(lambda tt, qq, pp, fn=fn: fn(tt, qq, pp, self.args))
+            out[key] = np.asarray(vf(t, q, p))
+        return out
+
+    def __repr__(self) -> str:
+        return (
+            f"Example(name={self.name!r}, n={self.n}, m={self.m}, t_span={self.t_span}, "
+            f"exact={'yes' if self.has_exact else 'no'}, args={self.args!r})"
+        )
+
+
+# ------------------------------------------------------------------------- helpers
+def vectorised(core: Callable[[np.ndarray], tuple[np.ndarray, ...]]) -> Callable:
+    """Wrap ``core(t: (N,)) -> (q, p, lam)`` so that a scalar ``t`` gives 1-D arrays."""
+
+    def exact(t):
+        tt = np.asarray(t, dtype=np.float64)
+        if tt.ndim > 1:
+            raise ValueError(f"exact(t) takes a scalar or a 1-D array; got shape {tt.shape}")
+        scalar = tt.ndim == 0
+        q, p, lam = core(np.atleast_1d(tt))
+        q, p, lam = (np.ascontiguousarray(a, dtype=np.float64) for a in (q, p, lam))
+        if scalar:
+            return q[0], p[0], lam[0]
+        return q, p, lam
+
+    exact.__doc__ = core.__doc__
+    return exact
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _residuals(problem, t, q, p, lam, args):
+    phi = problem.phi(t, q, p, args)
+    hid = hidden_constraint(problem, t, q, p, lam, args)
+    return phi, hid, consistent_lambda(problem, t, q, p, lam, args)
+
+
+# Compiled once per problem object (problems hash by identity) and shapes; the
+# parameters in ``args`` are traced, so every parameter value reuses the compilation.
+_consistent_lambda = jax.jit(consistent_lambda, static_argnums=0)
+
+
+def consistent_lambda0(problem, q0, p0, args, m: int) -> np.ndarray:
+    """λ0 from the hidden constraint at ``t0 = 0`` (one Newton step is exact for
+    nonholonomic systems; two more are harmless)."""
+    lam = _consistent_lambda(
+        problem,
+        jnp.asarray(0.0),
+        jnp.asarray(q0, dtype=jnp.float64),
+        jnp.asarray(p0, dtype=jnp.float64),
+        jnp.zeros(m, dtype=jnp.float64),
+        args,
+    )
+    return np.asarray(lam, dtype=np.float64)
+
+
+def positive(name: str, value: float) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number; got {value}")
+    return value
+
+
+def finite(name: str, value: float) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite; got {value}")
+    return value
+
+
+def t_span_to(t_end: float) -> tuple[float, float]:
+    return (0.0, positive("t_end", t_end))
+
+
+def cumulative_integral(rate: Callable[[np.ndarray], np.ndarray], t: np.ndarray,
+                        panel: float) -> np.ndarray:
+    """``∫_0^t rate(s) ds`` for every entry of ``t`` (shape ``(N,)``).
+
+    ``rate`` maps times of shape ``(K,)`` to values of shape ``(K, d)``. The sorted
+    distinct times (and 0) are joined by composite Gauss-Legendre panels of length at
+    most ``panel``; the pieces are summed cumulatively in extended precision, so the cost
+    is linear in ``N`` plus the length of the interval.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    nodes = np.unique(np.concatenate([t, [0.0]]))
+    i0 = int(np.searchsorted(nodes, 0.0))
+    a, b = nodes[:-1], nodes[1:]
+    x, w = np.polynomial.legendre.leggauss(GAUSS_NODES)
+    d = np.asarray(rate(np.zeros(1))).shape[1]
+    cum = np.zeros((nodes.size, d), dtype=np.longdouble)
+    if a.size:
+        counts = np.maximum(1, np.ceil((b - a) / panel).astype(np.int64))
+        gap = np.repeat(np.arange(a.size), counts)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        j = np.arange(gap.size) - np.repeat(starts, counts)
+        lo = a[gap] + (b[gap] - a[gap]) * (j / counts[gap])
+        hi = np.where(
+            j + 1 == counts[gap], b[gap], a[gap] + (b[gap] - a[gap]) * ((j + 1) / counts[gap])
+        )
+        half = 0.5 * (hi - lo)
+        mid = 0.5 * (hi + lo)
+        s = (mid[:, None] + half[:, None] * x[None, :]).reshape(-1)
+        vals = np.asarray(rate(s), dtype=np.float64).reshape(gap.size, x.size, d)
+        pieces = np.einsum("k,pkd->pd", w, vals) * half[:, None]
+        per_gap = np.add.reduceat(pieces.astype(np.longdouble), starts, axis=0)
+        cum[i0 + 1 :] = np.cumsum(per_gap[i0:], axis=0)
+        if i0 > 0:
+            cum[:i0] = -np.cumsum(per_gap[:i0][::-1], axis=0)[::-1]
+    return cum[np.searchsorted(nodes, t)].astype(np.float64)
