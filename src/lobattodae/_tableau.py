@@ -10,8 +10,10 @@ The s-stage Lobatto IIIA-IIIB pair (paper, section 2) consists of
 * the Lobatto IIIB matrix ``A_hat = (a_hat_ij)``, its symplectic conjugate
   ``b_i a_hat_ij + b_j a_ji = b_i b_j`` (with ``b_hat = b``, ``c_hat = c``).
 
-Everything is computed in float64 with NumPy, in well-conditioned ways, to about
-``1e-16``-``1e-15`` absolute accuracy for every ``s`` up to at least 16; the structural
+Everything is computed in float64 with NumPy, in well-conditioned ways. Measured maximum
+absolute errors against a 50-digit reference for ``s = 2..16``: ``c``, ``b`` 1e-16,
+``A`` 3e-16, ``A_hat`` 1.1e-15 (its formula amplifies the rounding of ``A`` by
+``b_j / b_i``). The structural
 facts (``c_1 = 0``, ``c_s = 1``, symmetric nodes and weights, ``a_1j = 0``, ``a_sj = b_j``,
 ``a_hat_is = 0``, ``a_hat_i1 = b_1``) are set exactly.
 """
@@ -138,8 +140,9 @@ def lobatto_nodes(s: int) -> np.ndarray:
     """Lobatto nodes ``c_1 < ... < c_s`` on ``[0, 1]``.
 
     ``c_1 = 0`` and ``c_s = 1`` exactly; ``c_2, ..., c_{s-1}`` are the roots of
-    ``P'_{s-1}(2x - 1)``. The nodes are symmetric, ``c_{s+1-i} = 1 - c_i`` exactly, and the
-    middle node of an odd ``s`` is exactly ``1/2``.
+    ``P'_{s-1}(2x - 1)``. The nodes are symmetric: for ``i <= s/2`` the node
+    ``c_{s+1-i}`` is exactly the float64 value of ``1 - c_i``, and the middle node of an
+    odd ``s`` is exactly ``1/2``.
 
     Parameters
     ----------

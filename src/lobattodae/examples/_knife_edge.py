@@ -131,8 +131,9 @@ def knife_edge(
         description="knife edge on an inclined plane (n=3, m=1), closed form",
         notes=(
             "θ is linear in t, so θ and p_θ are reproduced exactly by every method. "
-            "For s=2 λ is exact on this problem (up to round-off), so it does not test "
-            "the order of λ there."
+            "For s=2 λ is exact (up to round-off) after an EVEN number of steps, so it "
+            "does not test the order of λ there; after an odd number of steps the λ "
+            "error is O(h²) (R(∞) = -1 makes λ errors depend on the step parity)."
         ),
         expected_order_overrides={"lam": {2: None}},
     )

@@ -166,10 +166,12 @@ def vertical_rolling_disk(
         exact=exact,
         description="vertical rolling disk (n=4, m=2), closed form",
         notes=(
-            "φ and θ are linear in t and p_φ, p_θ are conserved, so the angles are "
-            "reproduced exactly; p superconverges here (known, not a bug)."
+            "φ and θ are linear in t and p_φ, p_θ are conserved. p superconverges for "
+            "even s: order 2s instead of 2s-2 (observed for s=2: 4 and s=4: 8; odd s are "
+            "regular). Known, not a bug. The p and λ error constants differ between odd "
+            "and even step counts: measure orders with step counts of one parity."
         ),
-        expected_order_overrides={},
+        expected_order_overrides={"p": {2: 4, 4: 8}},
     )
 
 
@@ -306,8 +308,8 @@ def falling_rolling_disk(
     I3: float = 0.5,  # noqa: N803
     theta0: float = 0.3,
     Omega: float = 1.0,  # noqa: N803
-    theta_rate0: float = 0.2,
-    spin_rate0: float = 0.6,
+    theta_rate0: float = 0.1,
+    spin_rate0: float = 0.5,
     x0: float = 0.0,
     y0: float = 0.0,
     phi0: float = 0.0,
@@ -339,7 +341,7 @@ def falling_rolling_disk(
     Omega : float
         Initial (for steady motion: constant) heading rate ``φ'`` (default 1).
     theta_rate0, spin_rate0 : float
-        Initial ``θ'`` and ``ψ'`` of the general motion (default 0.2, 0.6; ignored when
+        Initial ``θ'`` and ``ψ'`` of the general motion (default 0.1, 0.5; ignored when
         ``steady``; the steady spin rate for the defaults is 0.4525).
     x0, y0, phi0, psi0 : float
         Initial contact point, heading and spin angle (default 0).

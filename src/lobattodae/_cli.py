@@ -1,0 +1,302 @@
+"""Command-line interface ``lobattodae``: parses, calls the library, writes files, returns an exit code."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["main"]
+
+DEMO_EXAMPLE = "sleigh"
+
+
+class _ArgumentParser(argparse.ArgumentParser):
+    """argparse that raises instead of exiting, so ``main`` can return the exit code."""
+
+    def error(self, message):
+        raise _UsageError(f"{self.prog}: error: {message}")
+
+
+class _UsageError(Exception):
+    pass
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    return v
+
+
+def _stages(text: str) -> int:
+    v = _positive_int(text)
+    if v < 2:
+        raise argparse.ArgumentTypeError(f"the number of stages must be >= 2 (Lobatto needs both end points), got {v}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text}")
+    return v
+
+
+def _example_name(text: str) -> str:
+    from .examples import EXAMPLES
+
+    if text not in EXAMPLES:
+        raise argparse.ArgumentTypeError(f"unknown example {text!r}; choose from: {', '.join(EXAMPLES)}")
+    return text
+
+
+def _suffix(path: str, allowed: Sequence[str], what: str) -> Path:
+    p = Path(path)
+    if p.suffix.lower() not in allowed:
+        raise _UsageError(f"{what} must end in {' or '.join(allowed)}; got {path!r}")
+    return p
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _ArgumentParser(
+        prog="lobattodae",
+        description="Lobatto IIIA-IIIB integrators for partitioned index-2 DAEs and nonholonomic systems.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_ArgumentParser)
+
+    p = sub.add_parser("demo", help="reproduce the paper's Corollary: orders of q, p, λ for s = 2..5")
+    p.add_argument("--example", type=_example_name, default=DEMO_EXAMPLE)
+    p.add_argument("--stages", type=_stages, nargs="+", default=[2, 3, 4, 5])
+    p.add_argument("--plot", default="convergence.png", help="PNG file for the convergence plot")
+
+    p = sub.add_parser("tableau", help="print the Lobatto IIIA-IIIB coefficients for s stages")
+    p.add_argument("s", type=_stages)
+    p.add_argument("--check", action="store_true", help="also check simplifying assumptions and hypotheses")
+
+    p = sub.add_parser("convergence", help="convergence study on an example with a closed-form solution")
+    p.add_argument("--example", type=_example_name, required=True)
+    p.add_argument("--stages", type=_stages, nargs="+", default=[2, 3, 4, 5])
+    p.add_argument("--n-steps", type=_positive_int, nargs="+", default=None, help="step counts (default: per s)")
+    p.add_argument("--plot", default=None, help="PNG file for the convergence plot")
+    p.add_argument("--json", default=None, help="JSON file for the errors and orders")
+
+    p = sub.add_parser("run", help="integrate an example and report constraint and invariants")
+    p.add_argument("--example", type=_example_name, required=True)
+    p.add_argument("--stages", type=_stages, default=3)
+    step = p.add_mutually_exclusive_group(required=True)
+    step.add_argument("--dt", type=_positive_float)
+    step.add_argument("--n-steps", type=_positive_int)
+    p.add_argument("--t1", type=_positive_float, default=None, help="final time (default: the example's)")
+    p.add_argument("--plot", default=None, help="PNG file: constraint, invariants and Newton iterations")
+    p.add_argument("--save", default=None, help="write the solution to F.npz or F.csv")
+    p.add_argument("--no-progress", action="store_true", help="never show a progress bar")
+
+    sub.add_parser("examples", help="list the example problems")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 success, 1 failure, 2 usage error)."""
+    parser = build_parser()
+    try:
+        ns = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
+    except _UsageError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # --help
+        return int(exc.code or 0)
+    try:
+        return _COMMANDS[ns.command](ns)
+    except _UsageError as exc:
+        print(f"lobattodae: error: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, RuntimeError) as exc:
+        print(f"lobattodae: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+
+
+def _cmd_examples(ns) -> int:
+    from .examples import list_examples
+
+    for name, desc in list_examples():
+        print(f"{name:24s} {desc}")
+    return 0
+
+
+def _cmd_tableau(ns) -> int:
+    from ._conditions import check_tableau
+    from ._tableau import lobatto_pair
+
+    pair = lobatto_pair(ns.s)
+    with np.printoptions(precision=17, linewidth=160, suppress=False):
+        print(f"Lobatto IIIA-IIIB, s = {pair.s}")
+        print("c =", pair.c)
+        print("b =", pair.b)
+        print("A (IIIA) =\n", pair.a, sep="")
+        print("A_hat (IIIB) =\n", pair.a_hat, sep="")
+    if ns.check:
+        print()
+        print(check_tableau(pair))
+    return 0
+
+
+def _study(example_name, stages, n_steps):
+    from ._convergence import convergence_study
+    from .examples import get_example
+
+    ex = get_example(example_name)
+    if ex.exact is None:
+        print(f"note: {example_name} has no closed form; errors are measured against a reference solution")
+    return convergence_study(ex, stages=stages, n_steps=n_steps)
+
+
+def _save_plot(axes_fn, path: Path) -> None:
+    axes = axes_fn()
+    fig = axes[0].figure
+    fig.savefig(path, dpi=120)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    print(f"wrote {path}")
+
+
+def _cmd_convergence(ns) -> int:
+    from ._plotting import plot_convergence
+
+    plot = _suffix(ns.plot, [".png"], "--plot") if ns.plot else None
+    js = _suffix(ns.json, [".json"], "--json") if ns.json else None
+    start = time.perf_counter()
+    study = _study(ns.example, ns.stages, ns.n_steps)
+    print(study.table())
+    print(f"({time.perf_counter() - start:.1f} s including compilation)")
+    if js:
+        study.to_json(js)
+        print(f"wrote {js}")
+    if plot:
+        _save_plot(lambda: plot_convergence(study), plot)
+    return 0
+
+
+def _cmd_demo(ns) -> int:
+    from ._plotting import plot_convergence
+
+    plot = _suffix(ns.plot, [".png"], "--plot")
+    print("lobattodae demo: the Lobatto IIIA-IIIB pair on a nonlinear nonholonomic problem")
+    print("Theory (paper, Corollary): q, p ~ h^(2s-2); λ ~ h^s (s even), h^(s-1) (s odd)\n")
+    start = time.perf_counter()
+    study = _study(ns.example, ns.stages, None)
+    print(study.table())
+    worst = max(study.constraint_residual.values())
+    print(f"\nmax constraint residual ‖φ(q_k, p_k)‖∞ over all runs: {worst:.1e}")
+    print(f"({time.perf_counter() - start:.1f} s including compilation)")
+    _save_plot(lambda: plot_convergence(study), plot)
+    return 0
+
+
+def _cmd_run(ns) -> int:
+    from ._diagnostics import invariant_error
+    from ._solve import solve
+    from ._stepper import LobattoIIIAIIIB
+    from .examples import get_example
+
+    plot = _suffix(ns.plot, [".png"], "--plot") if ns.plot else None
+    save = _suffix(ns.save, [".npz", ".csv"], "--save") if ns.save else None
+    ex = get_example(ns.example)
+    t0 = ex.t_span[0]
+    t1 = ns.t1 if ns.t1 is not None else ex.t_span[1]
+    if not t1 > t0:
+        raise _UsageError(f"--t1 must be larger than the initial time {t0}; got {t1}")
+    progress = None if ns.no_progress else _DelayedProgress()
+    previous = signal.getsignal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
+    try:
+        sol = solve(
+            ex.problem, LobattoIIIAIIIB(stages=ns.stages), (t0, t1), ex.q0, ex.p0,
+            n_steps=ns.n_steps, dt=ns.dt, lam0=ex.lam0, args=ex.args, throw=False,
+            chunk_size=4096, progress=progress or False,
+        )
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    print(sol.message)
+    print(f"steps: {len(sol.t) - 1} of {sol.stats['n_steps']}, h = {sol.stats['h']:.6g}, "
+          f"time {sol.stats['compile_and_run_time']:.2f} s (including compilation)")
+    print(f"max ‖φ(q_k, p_k)‖∞ = {np.max(sol.stats['constraint_residual']):.2e}")
+    print(f"Newton iterations per step: mean {np.mean(sol.stats['newton_iterations']) if len(sol.t) > 1 else 0:.2f}")
+    for name, fn in ex.invariants.items():
+        err = invariant_error(sol, fn)
+        print(f"max |{name}(t) - {name}(0)| = {np.max(np.abs(err)):.2e}")
+    if save:
+        _save_solution(sol, save)
+        print(f"wrote {save}")
+    if plot:
+        from ._plotting import plot_diagnostics
+
+        _save_plot(lambda: plot_diagnostics(sol, dict(ex.invariants)), plot)
+    return 0 if sol.success else 1
+
+
+def _sigterm_to_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+class _DelayedProgress:
+    """A progress bar that appears only once a run has taken more than a couple of seconds."""
+
+    def __init__(self, delay: float = 2.0):
+        self.start = time.perf_counter()
+        self.delay = delay
+        self.shown = False
+
+    def __call__(self, done: int, total: int) -> None:
+        el = time.perf_counter() - self.start
+        if el < self.delay and not self.shown:
+            return
+        self.shown = True
+        frac = done / total
+        eta = el / frac * (1 - frac)
+        fill = int(30 * frac)
+        sys.stderr.write(f"\r[{'#' * fill}{'.' * (30 - fill)}] {done}/{total} steps  {el:6.1f}s  eta {eta:6.1f}s")
+        if done >= total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def _save_solution(sol, path: Path) -> None:
+    if path.suffix.lower() == ".npz":
+        np.savez(
+            path, t=sol.t, q=sol.q, p=sol.p, lam=sol.lam, status=int(sol.status),
+            message=sol.message, h=sol.stats["h"],
+            constraint_residual=sol.stats["constraint_residual"],
+            newton_iterations=sol.stats["newton_iterations"],
+        )
+    else:
+        n, m = sol.q.shape[1], sol.lam.shape[1]
+        header = ["t"] + [f"q{i}" for i in range(n)] + [f"p{i}" for i in range(n)] + [f"lam{i}" for i in range(m)]
+        data = np.column_stack([sol.t, sol.q, sol.p, sol.lam])
+        np.savetxt(path, data, delimiter=",", header=",".join(header), comments="", fmt="%.17g")
+
+
+_COMMANDS = {
+    "demo": _cmd_demo,
+    "tableau": _cmd_tableau,
+    "convergence": _cmd_convergence,
+    "run": _cmd_run,
+    "examples": _cmd_examples,
+}
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,257 @@
+"""Convergence studies: global errors over step sizes and observed orders per component."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from ._errors import LobattoDAEInputError
+from ._solve import solve
+from ._stepper import LobattoIIIAIIIB
+
+__all__ = ["ConvergenceStudy", "convergence_study", "observed_order", "default_step_counts"]
+
+COMPONENTS = ("q", "p", "lam")
+#: Errors below PLATEAU_REL * (1 + max |x|) are treated as round-off and not fitted.
+PLATEAU_REL = 1e-12
+
+
+def observed_order(h: Sequence[float], err: Sequence[float], floor: float = 0.0, n_fit: int = 4) -> float:
+    """Observed order: least-squares slope of ``log err`` against ``log h``.
+
+    Only points with ``err > floor`` (above the round-off plateau) are used, and of those the
+    ``n_fit`` smallest step sizes (the asymptotic regime; coarse steps can be pre-asymptotic).
+    Returns NaN when fewer than two points lie above the floor (the component is exact, or
+    at round-off for every step size).
+    """
+    h = np.asarray(h, float)
+    err = np.asarray(err, float)
+    keep = np.flatnonzero(np.isfinite(err) & (err > floor) & (err > 0))
+    if keep.size < 2:
+        return float("nan")
+    keep = keep[np.argsort(h[keep])][:n_fit]
+    slope, _ = np.polyfit(np.log(h[keep]), np.log(err[keep]), 1)
+    return float(slope)
+
+
+def default_step_counts(stages: int, t_span_length: float = 2.0) -> tuple[int, ...]:
+    """Step counts for a study of an s-stage method on a problem of O(1) time scale.
+
+    Wide enough that q and p of high-order methods reach the round-off plateau while λ (of
+    lower order) is still resolved in its asymptotic regime.
+    """
+    if stages == 2:
+        counts = (16, 24, 32, 48, 64, 96, 128, 192, 256)
+    elif stages == 3:
+        counts = (8, 12, 16, 24, 32, 48, 64, 96, 128)
+    else:
+        counts = (4, 5, 6, 8, 10, 12, 16, 24, 32, 48, 64)
+    scale = max(1.0, t_span_length / 2.0)
+    return tuple(int(round(n * scale)) for n in counts)
+
+
+@dataclass(frozen=True)
+class ConvergenceStudy:
+    """Errors and observed orders of a convergence study.
+
+    Attributes
+    ----------
+    name : str
+    stages : tuple of int
+    n_steps : dict s -> array of step counts
+    h : dict s -> array of step sizes
+    errors : dict s -> dict component -> array of global errors (max over the grid of the
+        max-norm error against the exact solution; at the final time against a reference)
+    floors : dict component -> round-off floor used in the fits
+    observed : dict s -> dict component -> fitted order (NaN: exact / at round-off)
+    expected : dict s -> dict component -> order predicted by the paper's Corollary
+    constraint_residual : dict s -> max ‖φ‖∞ over all runs with s stages
+    """
+
+    name: str
+    stages: tuple[int, ...]
+    n_steps: Mapping[int, np.ndarray]
+    h: Mapping[int, np.ndarray]
+    errors: Mapping[int, Mapping[str, np.ndarray]]
+    floors: Mapping[str, float]
+    observed: Mapping[int, Mapping[str, float]]
+    expected: Mapping[int, Mapping[str, int]]
+    constraint_residual: Mapping[int, float]
+    reference: str = "exact"
+    notes: str = field(default="")
+
+    def table(self) -> str:
+        """Observed vs theoretical orders, one row per s."""
+        lines = [
+            f"Convergence study: {self.name} (errors against the {self.reference} solution)",
+            f"{'s':>3} | {'q obs':>6} {'theory':>6} | {'p obs':>6} {'theory':>6} | "
+            f"{'lam obs':>7} {'theory':>6} | {'max|phi|':>9}",
+            "-" * 74,
+        ]
+        for s in self.stages:
+            o, e = self.observed[s], self.expected[s]
+
+            def fmt(x):
+                return "exact" if not np.isfinite(x) else f"{x:.2f}"
+
+            lines.append(
+                f"{s:>3} | {fmt(o['q']):>6} {e['q']:>6} | {fmt(o['p']):>6} {e['p']:>6} | "
+                f"{fmt(o['lam']):>7} {e['lam']:>6} | {self.constraint_residual[s]:9.1e}"
+            )
+        if self.notes:
+            lines.append(f"note: {self.notes}")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.table()
+
+    def to_dict(self) -> dict[str, Any]:
+        def conv(x):
+            if isinstance(x, np.ndarray):
+                return [conv(v) for v in x.tolist()]
+            if isinstance(x, float) and not np.isfinite(x):
+                return None
+            return x
+
+        return {
+            "name": self.name,
+            "reference": self.reference,
+            "stages": list(self.stages),
+            "runs": {
+                str(s): {
+                    "n_steps": conv(np.asarray(self.n_steps[s])),
+                    "h": conv(np.asarray(self.h[s], float)),
+                    "errors": {c: conv(np.asarray(self.errors[s][c], float)) for c in COMPONENTS},
+                    "observed_order": {c: conv(float(self.observed[s][c])) for c in COMPONENTS},
+                    "expected_order": dict(self.expected[s]),
+                    "max_constraint_residual": float(self.constraint_residual[s]),
+                }
+                for s in self.stages
+            },
+            "floors": {c: float(v) for c, v in self.floors.items()},
+            "notes": self.notes,
+        }
+
+    def to_json(self, path) -> None:
+        with open(path, "w") as fh:
+            json.dump(self.to_dict(), fh, indent=2)
+
+
+def convergence_study(
+    problem,
+    t_span=None,
+    q0=None,
+    p0=None,
+    *,
+    stages: Sequence[int] = (2, 3, 4, 5),
+    n_steps: Sequence[int] | Mapping[int, Sequence[int]] | None = None,
+    exact: Callable | None = None,
+    lam0=None,
+    args: Any = None,
+    method_options: Mapping[str, Any] | None = None,
+    name: str | None = None,
+    plateau: float = PLATEAU_REL,
+) -> ConvergenceStudy:
+    """Run ``solve`` for each number of stages and step count and fit the observed orders.
+
+    ``problem`` may be an :class:`~lobattodae.examples.Example` (then ``t_span``, initial
+    values, ``args`` and the exact solution are taken from it) or a problem object with
+    explicit ``t_span, q0, p0``.
+
+    With ``exact(t) -> (q, p, lam)`` the error is the maximum over all grid points of the
+    max-norm error. Without it, a reference is computed with ``max(stages) + 1`` stages and
+    four times the finest step count, and errors are measured at the final time.
+    Errors below ``plateau * (1 + max|x|)`` count as round-off and are left out of the fits.
+    """
+    if hasattr(problem, "problem") and hasattr(problem, "q0"):
+        ex = problem
+        problem = ex.problem
+        t_span = ex.t_span if t_span is None else t_span
+        q0 = ex.q0 if q0 is None else q0
+        p0 = ex.p0 if p0 is None else p0
+        lam0 = ex.lam0 if lam0 is None else lam0
+        args = ex.args if args is None else args
+        exact = ex.exact if exact is None else exact
+        name = ex.name if name is None else name
+    if t_span is None or q0 is None or p0 is None:
+        raise LobattoDAEInputError("convergence_study needs t_span, q0 and p0 (or an Example).")
+    stages = tuple(int(s) for s in stages)
+    if not stages:
+        raise LobattoDAEInputError("stages must list at least one number of stages.")
+    opts = dict(method_options or {})
+    length = float(t_span[1]) - float(t_span[0])
+
+    def counts_for(s):
+        if n_steps is None:
+            return np.asarray(default_step_counts(s, length))
+        if isinstance(n_steps, Mapping):
+            return np.asarray(n_steps[s])
+        return np.asarray(n_steps)
+
+    runs: dict[int, list] = {}
+    for s in stages:
+        method = LobattoIIIAIIIB(stages=s, **opts)
+        counts = counts_for(s)
+        chunk = 1 << (int(max(counts)) - 1).bit_length()  # one compilation per s
+        runs[s] = [
+            solve(problem, method, t_span, q0, p0, n_steps=int(n), lam0=lam0, args=args, chunk_size=chunk)
+            for n in counts
+        ]
+
+    if exact is not None:
+        reference = "exact"
+
+        def err(sol):
+            qe, pe, le = exact(sol.t)
+            le = np.asarray(le).reshape(sol.lam.shape)
+            return {
+                "q": float(np.max(np.abs(sol.q - qe))),
+                "p": float(np.max(np.abs(sol.p - pe))),
+                "lam": float(np.max(np.abs(sol.lam - le))),
+            }
+
+        ref_scale = None
+    else:
+        reference = "reference"
+        s_ref = max(stages) + 1
+        n_ref = 4 * int(max(max(counts_for(s)) for s in stages))
+        ref = solve(problem, LobattoIIIAIIIB(stages=s_ref, **opts), t_span, q0, p0, n_steps=n_ref, lam0=lam0, args=args)
+
+        def err(sol):
+            return {
+                "q": float(np.max(np.abs(sol.q[-1] - ref.q[-1]))),
+                "p": float(np.max(np.abs(sol.p[-1] - ref.p[-1]))),
+                "lam": float(np.max(np.abs(sol.lam[-1] - ref.lam[-1]))),
+            }
+
+        ref_scale = ref
+
+    any_sol = runs[stages[0]][0]
+    sample = ref_scale if ref_scale is not None else any_sol
+    floors = {c: plateau * (1.0 + float(np.max(np.abs(getattr(sample, c))))) for c in COMPONENTS}
+
+    h_out, n_out, e_out, obs, expct, cres = {}, {}, {}, {}, {}, {}
+    for s in stages:
+        sols = runs[s]
+        n_out[s] = np.asarray([len(sol.t) - 1 for sol in sols])
+        h_out[s] = np.asarray([sol.stats["h"] for sol in sols])
+        errs = [err(sol) for sol in sols]
+        e_out[s] = {c: np.asarray([e[c] for e in errs]) for c in COMPONENTS}
+        obs[s] = {c: observed_order(h_out[s], e_out[s][c], floors[c]) for c in COMPONENTS}
+        expct[s] = LobattoIIIAIIIB(stages=s).order()
+        cres[s] = float(max(np.max(sol.stats["constraint_residual"]) for sol in sols))
+    return ConvergenceStudy(
+        name=name or getattr(problem, "name", "problem"),
+        stages=stages,
+        n_steps=n_out,
+        h=h_out,
+        errors=e_out,
+        floors=floors,
+        observed=obs,
+        expected=expct,
+        constraint_residual=cres,
+        reference=reference,
+    )

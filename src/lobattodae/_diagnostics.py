@@ -1,0 +1,41 @@
+"""Diagnostics of a :class:`~lobattodae.Solution`: invariants, energy, constraint, multipliers."""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["invariant_values", "invariant_error", "energy_error", "constraint_residual"]
+
+
+def invariant_values(sol, invariant: Callable[..., Any]) -> np.ndarray:
+    """``I(t_k, q_k, p_k, args)`` along the solution, shape (N+1,). Vectorised with ``vmap``."""
+    fn = jax.jit(jax.vmap(lambda t, q, p: invariant(t, q, p, sol.args)))
+    return np.asarray(fn(jnp.asarray(sol.t), jnp.asarray(sol.q), jnp.asarray(sol.p)))
+
+
+def invariant_error(sol, invariant: Callable[..., Any]) -> np.ndarray:
+    """``I(t_k) - I(t_0)`` along the solution."""
+    v = invariant_values(sol, invariant)
+    return v - v[0]
+
+
+def energy_error(sol) -> np.ndarray:
+    """``H(t_k, q_k, p_k) - H(t_0, q_0, p_0)`` for a Hamiltonian problem."""
+    problem = sol.problem
+    if not hasattr(problem, "hamiltonian"):
+        raise TypeError(
+            f"energy_error needs a problem with a Hamiltonian (NonholonomicSystem or MechanicalSystem); "
+            f"got {type(problem).__name__}. Use invariant_error with your own energy function."
+        )
+    return invariant_error(sol, problem.hamiltonian)
+
+
+def constraint_residual(sol) -> np.ndarray:
+    """``‖φ(t_k, q_k, p_k)‖∞`` recomputed along the solution, shape (N+1,)."""
+    problem = sol.problem
+    fn = jax.jit(jax.vmap(lambda t, q, p: jnp.max(jnp.abs(problem.phi(t, q, p, sol.args)))))
+    return np.asarray(fn(jnp.asarray(sol.t), jnp.asarray(sol.q), jnp.asarray(sol.p)))
