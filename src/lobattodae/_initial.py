@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -53,12 +54,14 @@ def as_vector(x: Any, name: str) -> np.ndarray:
     return arr
 
 
-def _call(fn, name: str, expected: tuple[int, ...] | None, *a):
+def _shape_of(fn, name: str, expected: tuple[int, ...] | None, *a):
+    """Shape and dtype of a user function's output, found by tracing (nothing is compiled)."""
     try:
-        out = fn(*a)
+        out = jax.eval_shape(fn, *a)
     except Exception as exc:  # re-raised with context: the user's function failed
         raise ShapeError(f"calling {name} at the initial point raised {type(exc).__name__}: {exc}") from exc
-    out = jnp.asarray(out)
+    if not hasattr(out, "shape"):
+        raise ShapeError(f"{name} must return a single array; it returned {type(out).__name__}.")
     if expected is not None and out.shape != expected:
         raise ShapeError(f"{name} must return an array of shape {expected}; it returned shape {out.shape}.")
     if not jnp.issubdtype(out.dtype, jnp.floating):
@@ -69,6 +72,20 @@ def _call(fn, name: str, expected: tuple[int, ...] | None, *a):
             "do not cast to float32 inside the problem functions."
         )
     return out
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _initial_quantities(problem, t, q, p, lam, args):
+    """φ, the hidden-constraint residual, D_pφ·D_λg and one Newton update of λ (one compile)."""
+    phi = problem.phi(t, q, p, args)
+    r = hidden_constraint(problem, t, q, p, lam, args)
+    jac = constraint_lambda_jacobian(problem, t, q, p, lam, args)
+    return phi, r, jac
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _phi_and_jacobian(problem, t, q, p, args):
+    return problem.phi(t, q, p, args), jax.jacfwd(lambda pp: problem.phi(t, q, pp, args))(p)
 
 
 def validate_initial_values(
@@ -103,22 +120,24 @@ def validate_initial_values(
     if p0.shape != q0.shape:
         raise ShapeError(f"q0 and p0 must have the same shape (n,); got {q0.shape} and {p0.shape}.")
     t0j = jnp.asarray(t0, jnp.float64)
-    phi0 = _call(problem.phi, "phi(t, q, p, args)", None, t0j, jnp.asarray(q0), jnp.asarray(p0), args)
-    if phi0.ndim != 1 or phi0.shape[0] < 1:
-        raise ShapeError(f"phi(t, q, p, args) must return a 1-D array of shape (m,), m ≥ 1; got shape {phi0.shape}.")
-    m = phi0.shape[0]
+    qj, pj = jnp.asarray(q0), jnp.asarray(p0)
+    phi_s = _shape_of(problem.phi, "phi(t, q, p, args)", None, t0j, qj, pj, args)
+    if len(phi_s.shape) != 1 or phi_s.shape[0] < 1:
+        raise ShapeError(f"phi(t, q, p, args) must return a 1-D array of shape (m,), m ≥ 1; got shape {phi_s.shape}.")
+    m = phi_s.shape[0]
     if m > n:
         raise ShapeError(f"there are more constraints (m={m}) than degrees of freedom (n={n}).")
-    _call(problem.f, "f(t, q, p, args)", (n,), t0j, jnp.asarray(q0), jnp.asarray(p0), args)
+    _shape_of(problem.f, "f(t, q, p, args)", (n,), t0j, qj, pj, args)
     if lam0 is not None:
         lam0 = as_vector(lam0, "lam0")
         if lam0.shape != (m,):
             raise ShapeError(f"lam0 must have shape (m,) = ({m},) to match phi; got {lam0.shape}.")
-    lam_start = jnp.zeros(m) if lam0 is None else jnp.asarray(lam0)
-    _call(problem.g, "g(t, q, p, lam, args)", (n,), t0j, jnp.asarray(q0), jnp.asarray(p0), lam_start, args)
+    lam = jnp.zeros(m) if lam0 is None else jnp.asarray(lam0)
+    _shape_of(problem.g, "g(t, q, p, lam, args)", (n,), t0j, qj, pj, lam, args)
 
     scale = 1.0 + float(np.max(np.abs(p0))) + float(np.max(np.abs(q0)))
-    phi_norm = float(jnp.max(jnp.abs(phi0)))
+    phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, qj, pj, lam, args))
+    phi_norm = float(np.max(np.abs(phi0)))
     if not phi_norm <= tol * scale:
         if not project:
             raise InconsistentInitialValuesError(
@@ -127,30 +146,27 @@ def validate_initial_values(
                 "project_initial=True to project p0 onto the constraint."
             )
         p0 = _project_momenta(problem, t0j, q0, p0, args, tol * scale)
-
-    jac = np.asarray(constraint_lambda_jacobian(problem, t0j, jnp.asarray(q0), jnp.asarray(p0), lam_start, args))
+        pj = jnp.asarray(p0)
+        phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, qj, pj, lam, args))
     _check_nonsingular(jac)
 
     if lam0 is None:
-        lam = lam_start
         for _ in range(_LAMBDA_NEWTON_ITERATIONS):
-            r = hidden_constraint(problem, t0j, jnp.asarray(q0), jnp.asarray(p0), lam, args)
-            j = constraint_lambda_jacobian(problem, t0j, jnp.asarray(q0), jnp.asarray(p0), lam, args)
-            dlam = jnp.linalg.solve(j, r)
-            lam = lam - dlam
-            if float(jnp.max(jnp.abs(dlam))) <= 1e-15 * (1.0 + float(jnp.max(jnp.abs(lam)))):
+            dlam = np.linalg.solve(jac, r)
+            lam = np.asarray(lam) - dlam
+            if not np.all(np.isfinite(lam)):
+                raise InconsistentInitialValuesError(
+                    "could not compute a consistent λ0 from the hidden constraint (non-finite result)."
+                )
+            if float(np.max(np.abs(dlam))) <= 1e-15 * (1.0 + float(np.max(np.abs(lam)))):
                 break
+            _, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, qj, pj, jnp.asarray(lam), args))
         lam0 = np.asarray(lam)
-        if not np.all(np.isfinite(lam0)):
-            raise InconsistentInitialValuesError(
-                "could not compute a consistent λ0 from the hidden constraint (non-finite result)."
-            )
     else:
-        r = hidden_constraint(problem, t0j, jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0), args)
-        rn = float(jnp.max(jnp.abs(r)))
+        rn = float(np.max(np.abs(r)))
         jscale = 1.0 + float(np.max(np.abs(jac))) * (1.0 + float(np.max(np.abs(lam0))))
         if not rn <= tol * jscale * scale:
-            dl = np.linalg.solve(jac, np.asarray(r))
+            dl = np.linalg.solve(jac, r)
             raise InconsistentInitialValuesError(
                 f"the given lam0 violates the hidden constraint d/dt φ = 0: residual {rn:.3e}. "
                 f"The consistent value is lam0 = {np.asarray(lam0) - dl} "
@@ -181,12 +197,12 @@ def _project_momenta(problem, t0, q0, p0, args, tol):
     p = jnp.asarray(p0)
     q = jnp.asarray(q0)
     for _ in range(20):
-        r = problem.phi(t0, q, p, args)
+        r, jp = _phi_and_jacobian(problem, t0, q, p, args)
         if float(jnp.max(jnp.abs(r))) <= 1e-3 * tol:
             break
-        jp = jax.jacfwd(lambda pp: problem.phi(t0, q, pp, args))(p)
         p = p - jp.T @ jnp.linalg.solve(jp @ jp.T, r)
-    r = float(jnp.max(jnp.abs(problem.phi(t0, q, p, args))))
+    r, _ = _phi_and_jacobian(problem, t0, q, p, args)
+    r = float(jnp.max(jnp.abs(r)))
     if not r <= tol:
         raise InconsistentInitialValuesError(
             f"projecting p0 onto the constraint failed (remaining ‖φ‖∞ = {r:.3e}); "

@@ -84,7 +84,11 @@ def newton_solve(
     dtype = x0.dtype
 
     def fresh_jacobian(x):
-        jac, r = jax.jacfwd(lambda y: (residual(y), residual(y)), has_aux=True)(x)
+        def with_aux(y):
+            r = residual(y)
+            return r, r
+
+        jac, r = jax.jacfwd(with_aux, has_aux=True)(x)
         lu, piv = jsl.lu_factor(jac)
         return r, JacobianCache(lu, piv.astype(jnp.int32), jnp.asarray(True))
 

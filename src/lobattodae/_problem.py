@@ -134,6 +134,13 @@ class MechanicalSystem(_HamiltonianMixin):
     def f(self, t, q, p, args):
         return jnp.linalg.solve(self.mass_matrix(t, q, args), p)
 
+    def g(self, t, q, p, lam, args):
+        # -∂H/∂q = ½ vᵀ (∂M/∂q) v - ∇V with v = M⁻¹p held fixed: no derivative of the solve.
+        v = self.f(t, q, p, args)
+        kinetic = jax.grad(lambda qq: 0.5 * jnp.dot(v, self.mass_matrix(t, qq, args) @ v))(q)
+        dv = jax.grad(lambda qq: self.potential(t, qq, args))(q)
+        return kinetic - dv + self.constraint_matrix(t, q, args).T @ lam
+
 
 def hidden_constraint(problem, t, q, p, lam, args=None):
     r"""The hidden constraint ``d/dt φ = φ_t + φ_q f + φ_p g(λ)`` at ``(t, q, p, λ)``.

@@ -6,6 +6,7 @@ import functools
 import math
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Callable, NamedTuple
 
@@ -15,6 +16,7 @@ import numpy as np
 
 from ._errors import LobattoDAEInputError, NewtonFailure
 from ._initial import check_float64, validate_initial_values
+from ._problem import consistent_lambda
 from ._results import Result
 from ._stepper import LobattoIIIAIIIB, StepperState
 
@@ -26,6 +28,8 @@ MAX_CHUNK = 4096
 _MIN_CHUNK = 16
 #: Status code of a step that was not taken (past the end, or after a failure).
 _SKIPPED = -1
+#: A RuntimeWarning is issued when ‖λ_k − λ(q_k, p_k)‖∞ exceeds this times (1 + max|λ|).
+DRIFT_WARNING = 1e-3
 
 
 class _Carry(NamedTuple):
@@ -318,6 +322,7 @@ def _assemble(problem, method, args, t0, t1, h, n, q0, p0, lam0, outs, interrupt
     p = np.vstack([p0[None], out.p[:n_ok]])
     lam = np.vstack([lam0[None], out.lam[:n_ok]])
     phi0 = float(np.max(np.abs(np.asarray(problem.phi(jnp.asarray(t0), jnp.asarray(q0), jnp.asarray(p0), args)))))
+    drift = _multiplier_drift(problem, tk, q, p, lam, args)
     stats = {
         "newton_iterations": out.iterations[:n_ok],
         "residual_norm": out.residual_norm[:n_ok],
@@ -327,6 +332,7 @@ def _assemble(problem, method, args, t0, t1, h, n, q0, p0, lam0, outs, interrupt
         "n_steps": n,
         "failed_step": failed_step,
         "compile_and_run_time": elapsed,
+        "multiplier_drift": drift,
     }
     success = status == Result.SUCCESSFUL and n_ok == n
     message = status.message
@@ -337,7 +343,36 @@ def _assemble(problem, method, args, t0, t1, h, n, q0, p0, lam0, outs, interrupt
             raise NewtonFailure(message, step=failed_step, t=tf, reason=status.name.lower())
     elif status == Result.INTERRUPTED:
         message = f"Interrupted after {n_ok} of {n} steps (t = {tk[-1]:.6g}); the computed prefix is returned."
+    lam_scale = 1.0 + float(np.max(np.abs(lam)))
+    if drift.size and float(np.max(drift)) > DRIFT_WARNING * lam_scale:
+        k = int(np.argmax(drift > DRIFT_WARNING * lam_scale))
+        warnings.warn(
+            f"the multiplier λ_k drifts away from the hidden constraint: |λ_k − λ(q_k, p_k)| reaches "
+            f"{float(np.max(drift)):.2e} (first above {DRIFT_WARNING:g}·(1+max|λ|) at t = {tk[k]:.6g}). "
+            "With lam_start='previous' (the paper's scheme) λ errors are propagated with |R(∞)| = 1 and "
+            "can grow over long runs, and with them the errors in q and p. Use "
+            "LobattoIIIAIIIB(..., lam_start='consistent') or a smaller step.",
+            RuntimeWarning,
+            stacklevel=3,
+        )
     return Solution(tk, q, p, lam, bool(success), status, message, stats, problem, method, args)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _consistent_lambdas(problem, t, q, p, lam, args):
+    return jax.vmap(lambda tt, qq, pp, ll: consistent_lambda(problem, tt, qq, pp, ll, args, iterations=2))(t, q, p, lam)
+
+
+def _multiplier_drift(problem, t, q, p, lam, args) -> np.ndarray:
+    """``‖λ_k − λ(t_k, q_k, p_k)‖∞``: distance of the multiplier from the hidden constraint.
+
+    ``λ(t_k, q_k, p_k)`` (solved from the hidden constraint) is accurate to the order of q, p,
+    so this is an estimate of the error in λ_k.
+    """
+    if len(t) == 0:
+        return np.zeros(0)
+    lc = np.asarray(_consistent_lambdas(problem, jnp.asarray(t), jnp.asarray(q), jnp.asarray(p), jnp.asarray(lam), args))
+    return np.max(np.abs(lam - lc), axis=1)
 
 
 def _progress_reporter(progress):

@@ -97,9 +97,11 @@ class Example:
         Free-form remarks (known superconvergence, suitable uses).
     expected_order_overrides : Mapping[str, Mapping[int, float or None]]
         Known deviations from :func:`default_order`, per component (``"q"``, ``"p"``,
-        ``"lam"``) and number of stages ``s``: a number is the (higher) order observed,
-        ``None`` means the component is exact up to round-off for that ``s`` (no order can
-        be measured). Only cases that were checked are listed.
+        ``"lam"``) and number of stages ``s``, for the error measured as the maximum over
+        all step points of a constant-step run over ``t_span``: a number is the (higher)
+        order observed, ``None`` means the component is exact up to round-off for that
+        ``s`` (no order can be measured). Only cases that were checked are listed; see
+        ``notes`` for effects that depend on how the error is measured.
     """
 
     name: str
@@ -213,20 +215,24 @@ class Example:
         table = self.expected_order_overrides.get(component, {})
         return table.get(int(s), default)
 
-    def consistency_residuals(self) -> dict[str, float]:
-        """Max-norm residuals of ``φ(t0, q0, p0)`` and of the hidden constraint at
-        ``(t0, q0, p0, lam0)``, and the difference between ``lam0`` and
-        :func:`~lobattodae.consistent_lambda`."""
-        phi, hid, lam = _residuals(
-            self.problem,
-            jnp.asarray(self.t0, dtype=jnp.float64),
-            *(jnp.asarray(a, dtype=jnp.float64) for a in (self.q0, self.p0, self.lam0)),
-            self.args,
-        )
+    def consistency_residuals(self, t=None, q=None, p=None, lam=None) -> dict[str, float]:
+        """How consistent a state is: max-norm residuals of ``φ(t, q, p)`` (key
+        ``"phi"``), of the hidden constraint at ``(t, q, p, lam)`` (``"hidden"``) and
+        of ``lam`` minus :func:`~lobattodae.consistent_lambda` (``"lam"``).
+
+        Without arguments, at the initial values ``(t0, q0, p0, lam0)``. Compiled once per
+        problem and shapes.
+        """
+        t = self.t0 if t is None else t
+        q = self.q0 if q is None else q
+        p = self.p0 if p is None else p
+        lam = self.lam0 if lam is None else lam
+        t, q, p, lam = (jnp.asarray(a, dtype=jnp.float64) for a in (t, q, p, lam))
+        phi, hid, lam_c = _residuals(self.problem, t, q, p, lam, self.args)
         return {
             "phi": float(jnp.max(jnp.abs(phi), initial=0.0)),
             "hidden": float(jnp.max(jnp.abs(hid), initial=0.0)),
-            "lam0": float(jnp.max(jnp.abs(lam - self.lam0), initial=0.0)),
+            "lam": float(jnp.max(jnp.abs(lam_c - lam), initial=0.0)),
         }
 
     def invariant_values(self, t, q, p) -> dict[str, np.ndarray]:
@@ -235,11 +241,15 @@ class Example:
         t = jnp.asarray(t, dtype=jnp.float64)
         q = jnp.asarray(q, dtype=jnp.float64)
         p = jnp.asarray(p, dtype=jnp.float64)
-        out = {}
-        for key, fn in self.invariants.items():
-            vf = jax.vmap(lambda tt, qq, pp, fn=fn: fn(tt, qq, pp, self.args))
-            out[key] = np.asarray(vf(t, q, p))
-        return out
+        if not (t.ndim == 1 and q.ndim == 2 and q.shape == p.shape and q.shape[0] == t.size):
+            raise ValueError(
+                "invariant_values expects t of shape (N,) and q, p of shape (N, n); got "
+                f"{t.shape}, {q.shape}, {p.shape}"
+            )
+        return {
+            key: np.asarray(_invariant_along(fn, t, q, p, self.args))
+            for key, fn in self.invariants.items()
+        }
 
     def __repr__(self) -> str:
         return (
@@ -258,7 +268,8 @@ def vectorised(core: Callable[[np.ndarray], tuple[np.ndarray, ...]]) -> Callable
             raise ValueError(f"exact(t) takes a scalar or a 1-D array; got shape {tt.shape}")
         scalar = tt.ndim == 0
         q, p, lam = core(np.atleast_1d(tt))
-        q, p, lam = (np.ascontiguousarray(a, dtype=np.float64) for a in (q, p, lam))
+        # (+ 0.0 turns -0.0 into 0.0, for tidy printing)
+        q, p, lam = (np.ascontiguousarray(a, dtype=np.float64) + 0.0 for a in (q, p, lam))
         if scalar:
             return q[0], p[0], lam[0]
         return q, p, lam
@@ -272,6 +283,11 @@ def _residuals(problem, t, q, p, lam, args):
     phi = problem.phi(t, q, p, args)
     hid = hidden_constraint(problem, t, q, p, lam, args)
     return phi, hid, consistent_lambda(problem, t, q, p, lam, args)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _invariant_along(fn, t, q, p, args):
+    return jax.vmap(fn, in_axes=(0, 0, 0, None))(t, q, p, args)
 
 
 # Compiled once per problem object (problems hash by identity) and shapes; the

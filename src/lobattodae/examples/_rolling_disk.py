@@ -272,7 +272,9 @@ def steady_spin_rate(params: FallingDiskParams, theta0: float, Omega: float) -> 
     )
 
 
-def _fd_steady_exact(params: FallingDiskParams, theta0, Omega, omega_s, x0, y0, phi0, psi0):  # noqa: N803
+def _fd_steady_exact(
+    params: FallingDiskParams, theta0, Omega, omega_s, x0, y0, phi0, psi0  # noqa: N803
+):
     m, R = params.m, params.R
     rad = R * omega_s / Omega
 
