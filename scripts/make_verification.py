@@ -1,0 +1,971 @@
+#!/usr/bin/env python
+"""Regenerate ``docs/verification.md`` (and its figures) from the repository.
+
+    python scripts/make_verification.py            # full report -> docs/ (several minutes)
+    python scripts/make_verification.py --quick    # smoke run -> a temporary directory
+    python scripts/make_verification.py --out DIR  # write verification.md + figures/ to DIR
+
+What it does (issue #3, item 5):
+
+* a convergence study (``lobattodae._convergence.convergence_study``) with s = 2..6 stages
+  for every example that has a closed-form solution, with the observed orders beside the
+  theoretical ones (DESIGN.md section 3), the convergence plot and all errors;
+* checks of the known special cases (knife edge s = 2: lambda; vertical rolling disk: p)
+  computed from dedicated runs, so that the explanations in the report rest on numbers
+  from this run;
+* long runs (1e5 steps) on the reversible and the non-reversible contact oscillator with
+  the energy error and the constraint residual.
+
+Every number written to the report is computed by this script; the prose around the
+numbers is fixed, but the statements that depend on the data are checked and reworded
+(or flagged) when the data disagree.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))  # always the library of this checkout
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
+import numpy as np  # noqa: E402
+
+import lobattodae  # noqa: E402
+from lobattodae import LobattoIIIAIIIB  # noqa: E402
+from lobattodae._convergence import (  # noqa: E402
+    COMPONENTS,
+    PLATEAU_REL,
+    convergence_study,
+    default_step_counts,
+    observed_order,
+)
+from lobattodae._diagnostics import invariant_error  # noqa: E402
+from lobattodae._plotting import plot_convergence  # noqa: E402
+from lobattodae.examples import get_example, list_examples  # noqa: E402
+
+# ----------------------------------------------------------------------------- settings
+#: Fits of q and p use errors above QP_PLATEAU * (1 + max|x|). The library default
+#: (PLATEAU_REL = 1e-12) is kept for lambda, whose round-off level is higher (lambda is
+#: recovered from h * Lambda, so its round-off grows like eps / h). For q and p the
+#: observed round-off level is ~1e-15 (measured below and printed in the report), and
+#: 1e-12 would leave the s = 5, 6 fits only their coarsest, pre-asymptotic step counts.
+QP_PLATEAU = 1e-14
+#: Points per fit: the library's default (the n_fit finest step sizes above the floor).
+N_FIT = 4
+#: |observed - expected| above this is flagged as a deviation.
+ORDER_TOL = 0.3
+#: Examples whose error constants depend on the parity of the step count (see their
+#: Example.notes): only even step counts are used for them.
+EVEN_ONLY = {"vertical-disk"}
+
+FULL = {
+    "stages": (2, 3, 4, 5, 6),
+    # None: the library's default_step_counts. s = 5, 6: denser and coarser than the
+    # default, because their q, p errors reach round-off within a few step counts.
+    "counts": {
+        2: None,
+        3: None,
+        4: None,
+        5: (3, 4, 5, 6, 7, 8, 10, 12, 14, 16, 20, 24, 32, 48, 64),
+        6: (2, 3, 4, 5, 6, 7, 8, 10, 12, 16, 24, 32, 48, 64),
+    },
+    "long_steps": 100_000,
+    "knife_counts": (16, 17, 64, 65),
+    "disk_pairs": {2: (32, 64), 3: (16, 32), 4: (8, 16), 5: (4, 8), 6: (2, 4)},
+}
+QUICK = {
+    "examples": ("knife-edge", "vertical-disk"),
+    "stages": (2, 3),
+    "counts": {2: (16, 32, 64, 128), 3: (8, 16, 32, 64)},
+    "long_steps": 2_000,
+    "knife_counts": (16, 17),
+    "disk_pairs": {2: (32, 64), 3: (16, 32)},
+}
+LONG_STAGES = 3
+#: Step sizes of the long runs: h = 2 sin(pi / N) (McLachlan & Perlmutter), N = 15 and 40.
+LONG_N = (15, 40)
+
+LABEL = {"q": "q", "p": "p", "lam": "λ"}
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+# ----------------------------------------------------------------------------- helpers
+def fmt_order(x) -> str:
+    return "—" if x is None or not np.isfinite(x) else f"{x:.2f}"
+
+
+def fmt_e(x) -> str:
+    return "—" if x is None or not np.isfinite(x) else f"{x:.2e}"
+
+
+def fit_indices(h, err, floor, n_fit=N_FIT):
+    """The indices observed_order() uses (mirrors the library; checked against it)."""
+    h = np.asarray(h, float)
+    err = np.asarray(err, float)
+    keep = np.flatnonzero(np.isfinite(err) & (err > floor) & (err > 0))
+    if keep.size < 2:
+        return np.array([], int)
+    return keep[np.argsort(h[keep])][:n_fit]
+
+
+def local_slopes(h, err):
+    """Slope between consecutive step sizes (NaN where an error is 0)."""
+    h = np.asarray(h, float)
+    e = np.asarray(err, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.diff(np.log(e)) / np.diff(np.log(h))
+
+
+def machine_info() -> dict:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    import jax
+
+    info = {
+        "cpu": cpu,
+        "logical cores": os.cpu_count(),
+        "os": platform.platform(),
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "jax backend": jax.default_backend(),
+        "numpy": np.__version__,
+        "matplotlib": matplotlib.__version__,
+        "lobattodae": lobattodae.__version__,
+    }
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                             capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+        info["git"] = rev + (" (with uncommitted changes)" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        info["git"] = "unknown"
+    return info
+
+
+class Recorder:
+    """Collects the RuntimeWarnings of the library (e.g. its multiplier-drift warning)."""
+
+    def __enter__(self):
+        self._cm = warnings.catch_warnings(record=True)
+        self.caught = self._cm.__enter__()
+        warnings.simplefilter("always", RuntimeWarning)
+        return self
+
+    def __exit__(self, *exc):
+        self._cm.__exit__(*exc)
+        self.messages = [str(w.message) for w in self.caught if issubclass(w.category, RuntimeWarning)]
+        return False
+
+
+def solve_example(ex, s, n_steps, t_span=None, chunk_size=None):
+    return lobattodae.solve(ex.problem, LobattoIIIAIIIB(stages=s), t_span or ex.t_span,
+                            ex.q0, ex.p0, n_steps=int(n_steps), lam0=ex.lam0, args=ex.args,
+                            chunk_size=chunk_size)
+
+
+# --------------------------------------------------------------------- convergence study
+def step_counts(ex, s, cfg):
+    length = ex.t_end - ex.t0
+    base = cfg["counts"].get(s)
+    default = default_step_counts(s, length)
+    if base is None:
+        counts = list(default)
+    else:
+        scale = max(1.0, length / 2.0)  # as default_step_counts does
+        counts = sorted({int(round(n * scale)) for n in base})
+    if ex.name in EVEN_ONLY:
+        counts = [n for n in counts if n % 2 == 0]
+    # Counts coarser than the library's defaults may be beyond Newton's reach: try them.
+    dropped = []
+    while counts and counts[0] < min(default):
+        try:
+            solve_example(ex, s, counts[0], chunk_size=1 << (max(counts) - 1).bit_length())
+            break
+        except lobattodae.SolverError as exc:
+            dropped.append((counts.pop(0), str(exc).split(";")[0]))
+    return tuple(counts), dropped
+
+
+def run_study(ex, cfg):
+    stages = cfg["stages"]
+    counts, dropped = {}, {}
+    for s in stages:
+        counts[s], dropped[s] = step_counts(ex, s, cfg)
+    t0 = time.perf_counter()
+    with Recorder() as rec:
+        study = convergence_study(ex, stages=stages, n_steps=counts)
+    elapsed = time.perf_counter() - t0
+    if rec.messages:
+        dropped.setdefault("warnings", []).extend(rec.messages)
+    # Refit q and p above the lower floor (lambda keeps the library floor).
+    floors = dict(study.floors)
+    for c in ("q", "p"):
+        floors[c] = study.floors[c] * (QP_PLATEAU / PLATEAU_REL)
+    observed = {}
+    for s in stages:
+        observed[s] = {}
+        for c in COMPONENTS:
+            o = observed_order(study.h[s], study.errors[s][c], floors[c], n_fit=N_FIT)
+            idx = fit_indices(study.h[s], study.errors[s][c], floors[c])
+            if idx.size >= 2:  # guard: our reading of the library's fit window is right
+                slope = np.polyfit(np.log(study.h[s][idx]), np.log(study.errors[s][c][idx]), 1)[0]
+                assert abs(slope - o) < 1e-9, (ex.name, s, c, slope, o)
+            observed[s][c] = o
+    study = dataclasses.replace(study, floors=floors, observed=observed)
+    return study, dropped, elapsed
+
+
+def classify(ex, study, s, c):
+    """('ok' | 'documented' | 'deviation', text for the theory cell)."""
+    theory = study.expected[s][c]
+    obs = study.observed[s][c]
+    table = ex.expected_order_overrides.get(c, {})
+    documented = s in table
+    doc = table.get(s)
+    cell = str(theory)
+    if documented:
+        cell += f" (documented: {'exact' if doc is None else doc})"
+    if documented:
+        if doc is None and not np.isfinite(obs):
+            return "documented", cell
+        if doc is not None and np.isfinite(obs) and abs(obs - doc) <= ORDER_TOL:
+            return "documented", cell
+    if np.isfinite(obs) and abs(obs - theory) <= ORDER_TOL and not documented:
+        return "ok", cell
+    return "deviation", cell
+
+
+def roundoff_levels(study, stages):
+    """Largest q, p error among the runs of the highest s with h <= T/32: the truncation
+    error there is many orders below eps, so this is the round-off level of the study."""
+    s = max(stages)
+    if s < 6:
+        return None
+    T = study.h[s][0] * study.n_steps[s][0]
+    sel = study.h[s] <= T / 32 + 1e-15
+    if not np.any(sel):
+        return None
+    return {c: float(np.max(study.errors[s][c][sel])) for c in ("q", "p")}
+
+
+# ----------------------------------------------------------------------- special cases
+def knife_edge_lambda(cfg):
+    """s = 2 on the knife edge: lambda at even and odd step indices."""
+    ex = get_example("knife-edge")
+    a = ex.args
+    theta0 = float(ex.q0[2])
+    omega = float(ex.p0[2]) / a.J
+    v0 = (math.cos(theta0) * ex.p0[0] + math.sin(theta0) * ex.p0[1]) / a.m
+    counts = cfg["knife_counts"]
+    chunk = 1 << (max(counts) - 1).bit_length()
+    rows = []
+    for n in counts:
+        sol = solve_example(ex, 2, n, chunk_size=chunk)
+        _, _, le = ex.exact(sol.t)
+        e = np.max(np.abs(sol.lam - le.reshape(sol.lam.shape)), axis=1)
+        h = sol.stats["h"]
+        # Prediction of the two-step recursion (see the report): the error at every odd
+        # step equals that of lambda_1.
+        pred = a.m * a.g * math.cos(theta0) * (1 - math.cos(omega * h)) + a.m * v0 * (
+            2 * math.sin(omega * h) / h - omega * (1 + math.cos(omega * h)))
+        odd = e[1::2]
+        rows.append({
+            "n": n, "h": h, "even_max": float(np.max(e[0::2])), "odd_max": float(np.max(odd)),
+            "odd_min": float(np.min(odd)), "pred": abs(pred), "final": float(e[-1]),
+            "q": float(np.max(np.abs(sol.q - ex.exact(sol.t)[0]))),
+        })
+    return rows
+
+
+def vertical_disk_components(cfg):
+    """Per-component errors of the vertical disk for two step counts per s."""
+    ex = get_example("vertical-disk")
+    names = ["x", "y", "φ", "θ", "p_x", "p_y", "p_φ", "p_θ"]
+    out = {}
+    for s, (n1, n2) in cfg["disk_pairs"].items():
+        if s not in cfg["stages"]:
+            continue
+        errs = []
+        for n in (n1, n2):
+            sol = solve_example(ex, s, n, chunk_size=1 << (n2 - 1).bit_length())
+            qe, pe, _ = ex.exact(sol.t)
+            errs.append(np.concatenate([np.max(np.abs(sol.q - qe), axis=0),
+                                        np.max(np.abs(sol.p - pe), axis=0)]))
+        e1, e2 = errs
+        with np.errstate(divide="ignore", invalid="ignore"):
+            order = np.log(e1 / e2) / math.log(n2 / n1)
+        order = np.where(e2 > 1e-13, order, np.nan)
+        out[s] = {"n": (n1, n2), "names": names, "e1": e1, "e2": e2, "order": order}
+    return out
+
+
+# ----------------------------------------------------------------------------- long runs
+def envelope(t, x, blocks=1000):
+    """Max of |x| over consecutive blocks (for readable plots of 1e5 points)."""
+    x = np.abs(np.asarray(x))
+    n = x.size
+    b = max(1, n // blocks)
+    m = (n // b) * b
+    xm = x[:m].reshape(-1, b).max(axis=1)
+    tm = np.asarray(t)[:m].reshape(-1, b).mean(axis=1)
+    return tm, xm, b
+
+
+def long_run(name, n_steps, N):
+    ex = get_example(name)
+    h = 2 * math.sin(math.pi / N)
+    T = n_steps * h
+    t0 = time.perf_counter()
+    with Recorder() as rec:
+        sol = solve_example(ex, LONG_STAGES, n_steps, t_span=(0.0, T))
+    wall = time.perf_counter() - t0
+    lam_drift = sol.stats.get("multiplier_drift")  # ‖λ_k − λ(q_k, p_k)‖∞, if the library has it
+    dH = invariant_error(sol, ex.invariants["energy"])
+    dHy = invariant_error(sol, ex.invariants["H_y"])
+    H0 = float(lobattodae._diagnostics.invariant_values(sol, ex.invariants["energy"])[0])
+    phi = np.asarray(sol.stats["constraint_residual"])
+    k = max(1, n_steps // 10)
+    slope, icpt = np.polyfit(sol.t, dH, 1)
+    slope_first = np.polyfit(sol.t[: k + 1], dH[: k + 1], 1)[0]
+    slope_last = np.polyfit(sol.t[-k - 1:], dH[-k - 1:], 1)[0]
+    dec = np.linspace(0, n_steps, 11).astype(int)
+    return {
+        "name": name, "N": N, "h": h, "T": T, "n_steps": n_steps, "H0": H0, "wall": wall,
+        "compile_and_run": float(sol.stats.get("compile_and_run_time", float("nan"))),
+        "first10": float(np.max(np.abs(dH[: k + 1]))), "last10": float(np.max(np.abs(dH[-k - 1:]))),
+        "max_dH": float(np.max(np.abs(dH))), "slope": float(slope), "slope_first": float(slope_first),
+        "slope_last": float(slope_last), "final_dH": float(dH[-1]),
+        "max_phi": float(np.max(phi)), "max_dHy": float(np.max(np.abs(dHy))),
+        "newton_mean": float(np.mean(sol.stats["newton_iterations"])),
+        "newton_max": int(np.max(sol.stats["newton_iterations"])),
+        "deciles": [(float(sol.t[i]), float(dH[i])) for i in dec],
+        "warnings": rec.messages,
+        "lam_drift_first10": None if lam_drift is None else float(np.max(lam_drift[: k + 1])),
+        "lam_drift_last10": None if lam_drift is None else float(np.max(lam_drift[-k - 1:])),
+        "_t": sol.t, "_dH": dH, "_phi": phi, "_lam_drift": lam_drift,
+    }
+
+
+def plot_long_runs(runs, path):
+    names = list(dict.fromkeys(r["name"] for r in runs))
+    has_drift = all(r["_lam_drift"] is not None for r in runs)
+    rows = 3 if has_drift else 2
+    fig, axes = plt.subplots(rows, len(names), figsize=(6.2 * len(names), 3.2 * rows),
+                             squeeze=False, constrained_layout=True)
+    colors = {LONG_N[0]: "tab:blue", LONG_N[1]: "tab:orange"}
+    for j, name in enumerate(names):
+        ax_e, ax_c = axes[0, j], axes[1, j]
+        for r in (r for r in runs if r["name"] == name):
+            tm, em, b = envelope(r["_t"], r["_dH"])
+            lab = f"h = 2 sin(π/{r['N']}) = {r['h']:.4f}"
+            ax_e.semilogy(tm, em, color=colors.get(r["N"]), lw=1, label=lab)
+            tm, pm, _ = envelope(r["_t"], r["_phi"])
+            ax_c.semilogy(tm, np.maximum(pm, 1e-18), color=colors.get(r["N"]), lw=0.8, label=lab)
+            if has_drift:
+                tm, dm, _ = envelope(r["_t"], r["_lam_drift"])
+                axes[2, j].semilogy(tm, np.maximum(dm, 1e-18), color=colors.get(r["N"]), lw=0.8,
+                                    label=lab)
+        ax_e.set_title(f"{name}: |H − H0| (max over blocks of {b} steps), s = {LONG_STAGES}")
+        ax_c.set_title(f"{name}: ‖φ(q_k, p_k)‖∞ (max over blocks)")
+        ax_e.set_ylabel("|H(t) − H(0)|")
+        ax_c.set_ylabel("‖φ‖∞")
+        axes[-1, j].set_xlabel("t")
+        if has_drift:
+            axes[2, j].set_title(f"{name}: ‖λ_k − λ(q_k, p_k)‖∞ (max over blocks)")
+            axes[2, j].set_ylabel("multiplier drift")
+        for ax in axes[:, j]:
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=8)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------ report
+def study_table(ex, study, dropped):
+    lines = [
+        "| s | q observed | q theory | p observed | p theory | λ observed | λ theory | max ‖φ‖∞ | step counts n |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    flags = []
+    for s in study.stages:
+        cells = [str(s)]
+        for c in COMPONENTS:
+            kind, theory = classify(ex, study, s, c)
+            obs = fmt_order(study.observed[s][c])
+            if kind == "deviation":
+                obs += " ⚠"
+                flags.append((s, c))
+            elif kind == "documented":
+                obs += " †"
+            cells += [obs, theory]
+        n = study.n_steps[s]
+        cells.append(f"{study.constraint_residual[s]:.1e}")
+        cells.append(f"{n[0]}–{n[-1]} ({len(n)})")
+        lines.append("| " + " | ".join(cells) + " |")
+    notes = []
+    for s in study.stages:
+        for n, why in dropped.get(s, []):
+            notes.append(f"s = {s}: n = {n} left out ({why}).")
+    msgs = dropped.get("warnings", [])
+    if msgs:
+        notes.append(f"`solve` issued {len(msgs)} RuntimeWarning(s) during the study; the first: "
+                     f"*{msgs[0]}*")
+    return "\n".join(lines), flags, notes
+
+
+def details_block(study):
+    out = ["<details><summary>All errors (max over the grid of the max-norm error) and local "
+           "slopes; bold = points used in the fit</summary>", ""]
+    for s in study.stages:
+        h = study.h[s]
+        n = study.n_steps[s]
+        out.append(f"**s = {s}**")
+        out.append("")
+        out.append("| n | h | err q | slope | err p | slope | err λ | slope |")
+        out.append("|---|---|---|---|---|---|---|---|")
+        cols = {}
+        for c in COMPONENTS:
+            e = study.errors[s][c]
+            used = set(fit_indices(h, e, study.floors[c]).tolist())
+            sl = local_slopes(h, e)
+            cols[c] = [(f"**{fmt_e(e[i])}**" if i in used else fmt_e(e[i]),
+                        "" if i == 0 else fmt_order(sl[i - 1])) for i in range(len(h))]
+        for i in range(len(h)):
+            row = [str(n[i]), f"{h[i]:.4g}"]
+            for c in COMPONENTS:
+                row += list(cols[c][i])
+            out.append("| " + " | ".join(row) + " |")
+        out.append("")
+    out.append(f"Floors (errors at or below are not fitted): q {study.floors['q']:.1e}, "
+               f"p {study.floors['p']:.1e}, λ {study.floors['lam']:.1e}. The local slope in a "
+               "row is between that row and the previous one.")
+    out.append("")
+    out.append("</details>")
+    return "\n".join(out)
+
+
+def check(flag: bool, text_true: str, text_false: str) -> str:
+    return text_true if flag else "**Not confirmed by this run:** " + text_false
+
+
+def write_report(out_dir: Path, cfg, quick, studies, specials, long_runs, timings, info):
+    L = []
+    now = datetime.datetime.now(datetime.timezone.utc)
+    L.append("# Verification report")
+    L.append("")
+    L.append("Generated by `python scripts/make_verification.py` from the repository root "
+             "(do not edit by hand; rerun the script). "
+             + ("**This is a `--quick` smoke run (fewer stages and steps); not the report.**"
+                if quick else ""))
+    L.append("")
+    L.append(f"- Date: {now:%Y-%m-%d %H:%M} UTC")
+    L.append(f"- Machine: {info['cpu']}, {info['logical cores']} logical cores, {info['os']}; "
+             f"JAX backend: {info['jax backend']}")
+    L.append(f"- Software: Python {info['python']}, JAX {info['jax']}, NumPy {info['numpy']}, "
+             f"matplotlib {info['matplotlib']}, lobattodae {info['lobattodae']} (git {info['git']})")
+    L.append(f"- Total run time of the script: {timings['total']:.0f} s "
+             f"(convergence studies {timings['studies']:.0f} s, special-case runs "
+             f"{timings['specials']:.0f} s, long runs {timings['long']:.0f} s)")
+    L.append("")
+    L.append("Contents: [1 Convergence orders](#1-convergence-orders) · "
+             "[2 Special cases](#2-special-cases-superconvergence-and-exactness) · "
+             "[3 Deviations](#3-deviations-from-theory) · "
+             "[4 Long runs](#4-long-runs-energy-and-constraint)")
+    L.append("")
+
+    # ---------------------------------------------------------------- section 1
+    L.append("## 1. Convergence orders")
+    L.append("")
+    L.append(
+        "For every example of `lobattodae.examples` with a closed-form solution, "
+        "`convergence_study(example, stages=..., n_steps=...)` integrates over the example's "
+        "`t_span` with s-stage Lobatto IIIA-IIIB and constant steps h = T/n. The error of a "
+        "component is the maximum over all grid points of the max-norm error against the "
+        "exact solution. The observed order is the least-squares slope of log(error) against "
+        f"log(h) over the {N_FIT} smallest step sizes whose error is above a round-off floor "
+        "(the library's `observed_order`). Theory (DESIGN.md §3): q, p of order 2s−2; λ of "
+        "order s for even s and s−1 for odd s.")
+    L.append("")
+    L.append(
+        f"Floors: for λ the library default {PLATEAU_REL:g}·(1 + max|λ|); for q and p "
+        f"{QP_PLATEAU:g}·(1 + max|x|), lower than the library default, because with "
+        f"{PLATEAU_REL:g} the fits for s ≥ 5 would be left with only their coarsest "
+        "(pre-asymptotic) step sizes or none at all. λ keeps the higher floor: it is recovered "
+        "from h·Λ, and its round-off level grows as h shrinks.")
+    rl = [(name, roundoff_levels(st, cfg["stages"])) for name, (st, _, _) in studies.items()]
+    rl = [(n, r) for n, r in rl if r is not None]
+    if rl:
+        worst = {c: max(r[c] for _, r in rl) for c in ("q", "p")}
+        min_floor = {c: min(st.floors[c] for st, _, _ in studies.values()) for c in ("q", "p")}
+        ok = all(min_floor[c] >= 3 * worst[c] for c in ("q", "p"))
+        L.append(
+            f"Measured round-off level (largest q, p error of the s = {max(cfg['stages'])} runs "
+            f"with h ≤ T/32, where the truncation error is far below eps): q {worst['q']:.1e}, "
+            f"p {worst['p']:.1e}; the smallest q, p floors used are {min_floor['q']:.1e}, "
+            f"{min_floor['p']:.1e}"
+            + (" — at least 3× above it." if ok else
+               " — **less than 3× above it: the q, p fits may touch round-off.**"))
+    L.append("")
+    L.append(
+        "Step counts: the library's `default_step_counts` for s ≤ 4"
+        + (f"; for s = 5 and 6 denser and coarser lists ({cfg['counts'].get(5)} and "
+           f"{cfg['counts'].get(6)}), because at the default counts (4 … 64) q and p of s = 6 "
+           "are at round-off from n ≈ 5 on (several components would read 'exact')" if 6 in cfg["stages"] else "")
+        + ". Counts coarser than the library default are tried first and left out where "
+        "Newton fails. The vertical disk uses even counts only (its error constants depend "
+        "on the parity of n, see its `notes`). Marks: † = a special case documented in the "
+        "example's `expected_order_overrides` and matched; ⚠ = observed differs from the "
+        f"expectation by more than {ORDER_TOL} (discussed in §2–3); — = no order measurable "
+        "(fewer than two errors above the floor). Dotted lines in the plots: slope of the "
+        "generic theory; dashed grey: the floor.")
+    L.append("")
+    all_flags = []
+    for name, (study, dropped, elapsed) in studies.items():
+        ex = get_example(name)
+        L.append(f"### {name}")
+        L.append("")
+        L.append(f"{ex.description}. Example notes: *{ex.notes}*")
+        L.append("")
+        table, flags, notes = study_table(ex, study, dropped)
+        all_flags += [(name, s, c) for s, c in flags]
+        L.append(table)
+        L.append("")
+        for n in notes:
+            L.append(f"- {n}")
+        if notes:
+            L.append("")
+        L.append(f"![convergence plot for {name}](figures/convergence-{name}.png)")
+        L.append("")
+        L.append(details_block(study))
+        L.append(f"\nStudy run time: {elapsed:.1f} s.")
+        L.append("")
+
+    # ---------------------------------------------------------------- section 2
+    L.append("## 2. Special cases: superconvergence and exactness")
+    L.append("")
+    L += specials["text"]
+
+    # ---------------------------------------------------------------- section 3
+    L.append("## 3. Deviations from theory")
+    L.append("")
+    if not all_flags:
+        L.append(f"None: every observed order is within {ORDER_TOL} of the generic theory or "
+                 "of a documented special case.")
+        L.append("")
+    else:
+        L.append(f"Observed orders more than {ORDER_TOL} away from the generic theory and not "
+                 "matching a documented special case (⚠ in the tables):")
+        L.append("")
+        for name, s, c in all_flags:
+            study = studies[name][0]
+            h = study.h[s]
+            e = study.errors[s][c]
+            idx = fit_indices(h, e, study.floors[c])
+            sl = local_slopes(h, e)
+            above = np.flatnonzero(e > study.floors[c])
+            tail = [f"{sl[i - 1]:.2f} (n {study.n_steps[s][i - 1]}→{study.n_steps[s][i]})"
+                    for i in above if i > 0 and (i - 1) in above]
+            L.append(
+                f"- **{name}, s = {s}, {LABEL[c]}**: observed {fmt_order(study.observed[s][c])}, "
+                f"theory {study.expected[s][c]}; fit over n = {study.n_steps[s][idx].tolist()}. "
+                f"Local slopes above the floor: {', '.join(tail) if tail else 'none'}. "
+                + specials["explain"].get((name, s, c), "Not explained here."))
+        L.append("")
+
+    # ---------------------------------------------------------------- section 4
+    L.append("## 4. Long runs: energy and constraint")
+    L.append("")
+    L += long_text(long_runs)
+
+    (out_dir / "verification.md").write_text("\n".join(L) + "\n")
+
+
+def long_text(runs):
+    L = []
+    if not runs:
+        return ["(not run)"]
+    n = runs[0]["n_steps"]
+    L.append(
+        f"McLachlan–Perlmutter contact oscillator (`contact`, reversible) and its variant with "
+        f"S = cos z (`contact-nonreversible`), s = {LONG_STAGES}, {n:,} steps of "
+        f"h = 2 sin(π/N) for N = {LONG_N[0]} and {LONG_N[1]}, initial data of the examples "
+        "(H = 1.5, H_y = 0.5, ε = 0.3). The exact flow conserves H (dH/dt = φᵀλ = 0). "
+        "ΔH = H(q_k, p_k) − H(q_0, p_0) from `invariant_error`; ‖φ‖ from "
+        "`sol.stats['constraint_residual']`. 'First/last 10 %': max |ΔH| over the first/last "
+        "tenth of the steps; 'drift rate': slope of a least-squares line through ΔH(t) over the "
+        "whole run (and over the first and last tenth).")
+    L.append("")
+    L.append("| example | h | T | H0 | max\\|ΔH\\| first 10 % | max\\|ΔH\\| last 10 % | ΔH(T) | "
+             "drift rate (whole run) | rate, first 10 % | rate, last 10 % | max ‖φ‖∞ | "
+             "max\\|ΔH_y\\| | ‖λ−λ(q,p)‖ first / last 10 % | Newton its (mean/max) | wall time |")
+    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in runs:
+        L.append(
+            f"| {r['name']} | 2 sin(π/{r['N']}) = {r['h']:.4f} | {r['T']:.0f} | {r['H0']:.4f} | "
+            f"{r['first10']:.2e} | {r['last10']:.2e} | {r['final_dH']:+.2e} | {r['slope']:+.2e} | "
+            f"{r['slope_first']:+.2e} | {r['slope_last']:+.2e} | {r['max_phi']:.1e} | "
+            f"{r['max_dHy']:.1e} | {fmt_e(r['lam_drift_first10'])} / {fmt_e(r['lam_drift_last10'])} | "
+            f"{r['newton_mean']:.2f} / {r['newton_max']} | {r['wall']:.1f} s |")
+    L.append("")
+    L.append("Wall time includes JIT compilation. ‖λ−λ(q,p)‖: distance of the multiplier from "
+             "the hidden constraint at the step points (`sol.stats['multiplier_drift']`).")
+    for r in runs:
+        if r["warnings"]:
+            L.append(f"- `solve` warned on {r['name']}, h = {r['h']:.4f}: *{r['warnings'][0]}*")
+    L.append("")
+    L.append("![long runs](figures/long-runs-contact.png)")
+    L.append("")
+    by = {(r["name"], r["N"]): r for r in runs}
+    rev = [by.get(("contact", N)) for N in LONG_N]
+    nrev = [by.get(("contact-nonreversible", N)) for N in LONG_N]
+    if rev[0]:
+        r = rev[0]
+        ratio = abs(r["slope"]) * r["T"] / r["max_dH"]
+        bounded = r["last10"] <= 1.5 * r["first10"] and ratio < 0.05
+        L.append(
+            "**Reversible oscillator.** "
+            + check(bounded,
+                    f"The energy error is bounded: max |ΔH| is {r['first10']:.2e} over the first "
+                    f"and {r['last10']:.2e} over the last tenth of the run; the fitted linear "
+                    f"drift ({r['slope']:+.1e} per unit time) accumulates to "
+                    f"{abs(r['slope']) * r['T']:.1e} over T = {r['T']:.0f}, "
+                    f"{ratio:.1e} of the oscillation amplitude, i.e. no measurable drift.",
+                    f"max |ΔH| grows from {r['first10']:.2e} (first tenth) to {r['last10']:.2e} "
+                    f"(last tenth); drift rate {r['slope']:+.2e}.")
+        )
+        if rev[1]:
+            q = rev[0]["max_dH"] / rev[1]["max_dH"]
+            p = math.log(q) / math.log(rev[0]["h"] / rev[1]["h"])
+            L.append(
+                f"With the smaller step the bounded error is {rev[1]['max_dH']:.2e} "
+                f"(ratio {q:.0f}, i.e. h^{p:.2f}; the method has order {2 * LONG_STAGES - 2}).")
+        L.append("")
+    if nrev[0]:
+        r = nrev[0]
+        drift = r["last10"] > 3 * r["first10"]
+        L.append(
+            "**Non-reversible oscillator.** "
+            + check(drift,
+                    f"The energy drifts: max |ΔH| is {r['first10']:.2e} over the first and "
+                    f"{r['last10']:.2e} over the last tenth; ΔH(T) = {r['final_dH']:+.2e} "
+                    f"({100 * r['final_dH'] / r['H0']:+.0f} % of H0 = {r['H0']:.2f}). "
+                    + ("The drift is roughly linear" if 0.5 <= r["slope_last"] / r["slope_first"] <= 2
+                       else "The drift is not linear")
+                    + f": the fitted rate is {r['slope_first']:+.2e} per unit time over the first "
+                    f"tenth, {r['slope_last']:+.2e} over the last, {r['slope']:+.2e} over the "
+                    "whole run. ",
+                    f"max |ΔH| is {r['first10']:.2e} (first tenth) and {r['last10']:.2e} (last "
+                    "tenth): no clear drift in this run. ")
+        )
+        if nrev[1]:
+            q = nrev[0]["slope_first"] / nrev[1]["slope_first"]
+            p = math.log(abs(q)) / math.log(nrev[0]["h"] / nrev[1]["h"]) if q > 0 else float("nan")
+            L.append(
+                f"With h = 2 sin(π/{LONG_N[1]}) the early drift rate is "
+                f"{nrev[1]['slope_first']:+.2e} per unit time (ratio {q:.3g} to the larger step, "
+                f"i.e. ∝ h^{p:.2f}; order of the method {2 * LONG_STAGES - 2}), and max |ΔH| over "
+                f"the run is {nrev[1]['max_dH']:.2e}. A drift that shrinks like a power of h is a "
+                "truncation-error effect of the method, not a conservation bug: the exact flow "
+                "conserves H, and the Lobatto IIIA-IIIB pair is not symplectic for this "
+                "nonholonomic system; its good energy behaviour on the first problem comes from "
+                "reversibility, which S = cos z destroys.")
+        L.append("")
+        L.append(
+            "In both problems the constraint holds to round-off at every step point "
+            f"(max ‖φ‖∞ ≤ {max(x['max_phi'] for x in runs):.1e}), as it must (the last stage "
+            "enforces φ(q₁, p₁) = 0 to Newton tolerance), and the decoupled oscillator energy "
+            f"H_y stays within {max(x['max_dHy'] for x in runs):.1e}.")
+        if all(x["lam_drift_first10"] is not None for x in runs):
+            grow = [x for x in runs if x["lam_drift_last10"] > 3 * x["lam_drift_first10"]]
+            L.append(
+                "The multiplier's distance from the hidden constraint, ‖λ_k − λ(q_k, p_k)‖, is "
+                "large at these coarse steps (λ has order only s − 1 = "
+                f"{LONG_STAGES - 1} for s = {LONG_STAGES}, and with R(∞) = +1 its errors are "
+                "never damped): "
+                + "; ".join(f"{x['name']}, h = {x['h']:.3f}: {x['lam_drift_first10']:.1e} → "
+                            f"{x['lam_drift_last10']:.1e}" for x in runs)
+                + " (max over the first → last tenth). "
+                + ("It does not grow in any of the runs."
+                   if not grow else
+                   "It grows (more than 3×) in: " + ", ".join(
+                       f"{x['name']} (h = {x['h']:.3f})" for x in grow) + "."))
+        L.append("")
+        L.append("<details><summary>ΔH at every tenth of the runs</summary>")
+        L.append("")
+        L.append("| example | h | " + " | ".join(f"{10 * i} %" for i in range(11)) + " |")
+        L.append("|---|---|" + "---|" * 11)
+        for r in runs:
+            L.append(f"| {r['name']} | {r['h']:.4f} | "
+                     + " | ".join(f"{d:+.2e}" for _, d in r["deciles"]) + " |")
+        L.append("")
+        L.append("</details>")
+        L.append("")
+    return L
+
+
+# ------------------------------------------------------------------- special-case text
+def special_cases(cfg, studies):
+    text, explain = [], {}
+    stages = cfg["stages"]
+
+    # --- knife edge, s = 2, lambda
+    if "knife-edge" in studies and 2 in stages:
+        rows = knife_edge_lambda(cfg)
+        even_exact = all(r["even_max"] < 1e-12 for r in rows)
+        odd_const = all(abs(r["odd_max"] - r["pred"]) <= 1e-9 + 1e-6 * r["pred"]
+                        and abs(r["odd_min"] - r["pred"]) <= 1e-9 + 1e-6 * r["pred"] for r in rows)
+        st = studies["knife-edge"][0]
+        text.append("### Knife edge, s = 2: λ exact at every other step")
+        text.append("")
+        text.append(
+            "θ' = p_θ/J is constant (H does not depend on θ and μ has no θ-component), so θ "
+            "and p_θ are reproduced exactly. For s = 2 the scheme is RATTLE-like: "
+            "p_{k+½} = p_k + (h/2)(−∇V + μ_k λ_k), q_{k+1} = q_k + h p_{k+½}/m, "
+            "p_{k+1} = p_{k+½} + (h/2)(−∇V + μ_{k+1} λ_{k+1}), φ(q_{k+1}, p_{k+1}) = 0. With "
+            "μ_k = (−sin θ_k, cos θ_k, 0), p_k = m v_k (cos θ_k, sin θ_k, ·) (the constraint) "
+            "and c = cos ωh, σ = sin ωh, projecting on μ_{k+1} and on the blade direction gives "
+            "λ_{k+1} + c λ_k = 2mg cos θ_{k+1} + (2σ/h) m v_k and "
+            "m v_{k+1} = c m v_k + (h/2) σ λ_k − h m g sin θ_{k+1}. Eliminating v: "
+            "**λ_{k+2} = λ_k + 2mg (cos θ_{k+2} − cos θ_k)**, and the exact multiplier "
+            "λ(t) = mωv₀ − mg cos θ₀ + 2mg cos θ(t) satisfies the same two-step relation. Since "
+            "θ_k is exact and λ_0 is consistent, λ_k is exact at every even k; at odd k the error "
+            "is that of λ_1, the same at every odd step: "
+            "mg cos θ₀ (1 − cos ωh) + m v₀ (2 sin(ωh)/h − ω(1 + cos ωh)) = O(h²) "
+            "(the R(∞) = −1 oscillation, undamped here).")
+        text.append("")
+        text.append("| n | h | max λ error, even k | λ error at odd k (min … max) | predicted odd-k error | λ error at t = T | max q error |")
+        text.append("|---|---|---|---|---|---|---|")
+        for r in rows:
+            text.append(f"| {r['n']} | {r['h']:.4g} | {r['even_max']:.1e} | {r['odd_min']:.6e} … "
+                        f"{r['odd_max']:.6e} | {r['pred']:.6e} | {r['final']:.1e} | {r['q']:.1e} |")
+        text.append("")
+        text.append(check(even_exact and odd_const,
+                          "The run confirms it: even-k errors are at round-off, the odd-k error "
+                          "is one constant equal to the prediction. ",
+                          "even-k errors or odd-k errors do not match the derivation above. "))
+        o2 = st.observed[2]["lam"]
+        ex = get_example("knife-edge")
+        documented = 2 in ex.expected_order_overrides.get("lam", {})
+        text.append(
+            f"Consequently the s = 2 λ entry of the knife-edge table reads {fmt_order(o2)}, "
+            "not 'exact': the study measures the maximum over *all* grid points, which includes "
+            "the odd ones (the error at t = T alone would measure no order for even n). "
+            + ("The example's `expected_order_overrides` declares λ exact for s = 2, which holds "
+               "at even steps only; this is why that entry is flagged. It is explained, not a "
+               "defect of the method."
+               if documented else
+               "The example documents this and (rightly) declares no override for it."))
+        text.append("")
+        explain[("knife-edge", 2, "lam")] = (
+            "Explained in §2 (λ is exact at even steps, O(h²) and constant at odd ones; the "
+            "study's max over all steps sees the odd ones).")
+
+    # --- vertical disk
+    if "vertical-disk" in studies:
+        comp = vertical_disk_components(cfg)
+        st = studies["vertical-disk"][0]
+        text.append("### Vertical rolling disk: p (and θ) superconverge for even s")
+        text.append("")
+        text.append(
+            "Here H has no potential and does not depend on φ, and μᵀλ has no φ-component, so "
+            "p_φ' = 0 and φ' = p_φ/J: every Runge–Kutta method reproduces constants and linear "
+            "functions, so φ and p_φ are exact at all stages (table below: errors at round-off). "
+            "At every step point the constraint holds to round-off, so p_x = (mR/I) cos φ_k p_θ "
+            "and p_y = (mR/I) sin φ_k p_θ with φ_k exact: **the whole p error is the error of the "
+            "single scalar p_θ**, a conserved quantity of the exact motion "
+            "(p_θ + R(cos φ p_x + sin φ p_y) = (1 + mR²/I) p_θ is a first integral), and θ is its "
+            "integral. The positions x, y pick up the error of integrating "
+            "R cos φ θ' over time and behave like q in general (order 2s−2).")
+        text.append("")
+        text.append("Per-component max errors for two step counts and the order between them "
+                    "(— : at round-off):")
+        text.append("")
+        names = next(iter(comp.values()))["names"] if comp else []
+        text.append("| s | n | " + " | ".join(names) + " |")
+        text.append("|---|---|" + "---|" * len(names))
+        for s, d in comp.items():
+            text.append(f"| {s} | {d['n'][0]} | " + " | ".join(fmt_e(x) for x in d["e1"]) + " |")
+            text.append(f"| {s} | {d['n'][1]} | " + " | ".join(fmt_e(x) for x in d["e2"]) + " |")
+            text.append(f"| {s} | order | " + " | ".join(fmt_order(x) for x in d["order"]) + " |")
+        text.append("")
+        pth = {s: d["order"][7] for s, d in comp.items()}
+        even = [s for s in pth if s % 2 == 0]
+        odd = [s for s in pth if s % 2 == 1]
+        even_2s = all(abs(pth[s] - 2 * s) <= 0.5 for s in even)
+        odd_reg = all(abs(pth[s] - (2 * s - 2)) <= 0.5 for s in odd)
+        phi_exact = all(d["e1"][2] < 1e-12 and d["e1"][6] < 1e-12 for d in comp.values())
+        text.append(check(
+            even_2s and odd_reg and phi_exact,
+            "In this run p_θ (hence p) has order 2s for even s ("
+            + ", ".join(f"s = {s}: {pth[s]:.2f}" for s in even) + ") and the regular 2s−2 "
+            "for odd s (" + ", ".join(f"s = {s}: {pth[s]:.2f}" for s in odd) + "); φ, p_φ are "
+            "exact. ",
+            "p_θ orders " + ", ".join(f"s = {s}: {pth[s]:.2f}" for s in pth) + " do not follow "
+            "'2s for even s, 2s−2 for odd s', or φ / p_φ are not exact. "))
+        text.append(
+            "What this argument does not give is *why* the conserved p_θ gains two orders only "
+            "for even s (where R(∞) = −1 and the λ errors alternate in sign from step to step; "
+            "a cancellation of the per-step p_θ changes over consecutive steps would explain "
+            "it). We have not derived it; it is an observation, consistent over s = 2, 4"
+            + (", 6" if 6 in comp else "") + ".")
+        if 6 in st.stages:
+            o = st.observed[6]["p"]
+            kind, _ = classify(get_example("vertical-disk"), st, 6, "p")
+            listed = sorted(get_example("vertical-disk").expected_order_overrides.get("p", {}))
+            text.append(
+                f" For s = 6 the study's fitted p order is {fmt_order(o)} (generic theory 10, "
+                f"pattern 2s = 12); the example's `expected_order_overrides` lists p for s = "
+                f"{listed}" + (", so this entry is flagged ⚠." if kind == "deviation" else "."))
+            explain[("vertical-disk", 6, "p")] = (
+                "Same even-s superconvergence as s = 2, 4 (pattern 2s = 12, see §2); not listed "
+                "in the example's expected_order_overrides.")
+        text.append("")
+
+    # --- particle p for s >= 5 (and anything else flagged is handled in §3)
+    if "particle" in studies and 5 in stages:
+        st = studies["particle"][0]
+        h, e = st.h[5], st.errors[5]["p"]
+        sl = local_slopes(h, e)
+        n = st.n_steps[5]
+        above = e > st.floors["p"]
+        default_floor = st.floors["p"] * PLATEAU_REL / QP_PLATEAU
+        o_default = observed_order(h, e, default_floor)
+        idx_def = fit_indices(h, e, default_floor)
+        rows = [f"{n[i - 1]}→{n[i]}: {sl[i - 1]:.2f}" for i in range(1, len(n)) if above[i]]
+        fine = [sl[i - 1] for i in range(1, len(n)) if above[i] and above[i - 1]][-3:]
+        reg = bool(fine) and all(abs(x - 8) < 0.6 for x in fine)
+        text.append("### Nonholonomic particle, s = 5: p")
+        text.append("")
+        text.append(
+            f"With the library's default floor ({PLATEAU_REL:g}) the p fit for s = 5 uses "
+            f"n = {n[idx_def].tolist()} and gives {fmt_order(o_default)}; with the q/p floor of this "
+            f"report it gives {fmt_order(st.observed[5]['p'])} over "
+            f"n = {n[fit_indices(h, e, st.floors['p'])].tolist()}. The local slopes of the "
+            f"p error between consecutive step counts are: {'; '.join(rows)}.")
+        text.append("")
+        text.append(check(
+            reg,
+            "They scatter widely at coarse steps (the location of the maximum error moves) and "
+            "settle near the theoretical 8 at the finest steps above round-off "
+            f"(last three: {', '.join(f'{x:.2f}' for x in fine)}): the large coarse-step value "
+            "is pre-asymptotic, **not superconvergence**. The fitted order still differs from 8 "
+            "because the asymptotic regime starts only about a decade above the round-off "
+            "floor, so the 4-point fit cannot avoid pre-asymptotic points entirely.",
+            "the local slopes at the finest steps above round-off "
+            f"({', '.join(f'{x:.2f}' for x in fine)}) do not settle near 8; unexplained."))
+        text.append("")
+        explain[("particle", 5, "p")] = (
+            "Pre-asymptotic behaviour of the p error at coarse steps; see §2 (the local slopes "
+            "at the finest steps approach 8).")
+    return {"text": text, "explain": explain}
+
+
+# --------------------------------------------------------------------------------- main
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke run: s = 2, 3, few step counts, short long runs; writes to a "
+                         "temporary directory unless --out is given")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="output directory for verification.md and figures/ (default: docs/, "
+                         "or a temporary directory with --quick)")
+    ap.add_argument("--examples", nargs="*", default=None,
+                    help="restrict the convergence studies to these examples (debugging)")
+    opts = ap.parse_args(argv)
+    cfg = QUICK if opts.quick else FULL
+    out = opts.out or (Path(tempfile.mkdtemp(prefix="lobattodae-verification-")) if opts.quick
+                       else ROOT / "docs")
+    (out / "figures").mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    info = machine_info()
+
+    names = [n for n, _ in list_examples() if get_example(n).has_exact]
+    if opts.examples:
+        unknown = set(opts.examples) - set(names)
+        if unknown:
+            ap.error(f"not closed-form examples: {sorted(unknown)}; choose from {names}")
+        names = [n for n in names if n in opts.examples]
+    elif "examples" in cfg:
+        names = [n for n in names if n in cfg["examples"]]
+
+    studies = {}
+    t0 = time.perf_counter()
+    for name in names:
+        log(f"convergence study: {name} (s = {cfg['stages']}) ...")
+        ex = get_example(name)
+        study, dropped, elapsed = run_study(ex, cfg)
+        studies[name] = (study, dropped, elapsed)
+        log(study.table())
+        log(f"  {elapsed:.1f} s")
+        axes = plot_convergence(study)
+        for ax in axes:  # the minor-tick labels of log axes overlap at this figure size
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        axes[0].figure.savefig(out / "figures" / f"convergence-{name}.png", dpi=100)
+        plt.close(axes[0].figure)
+    t_studies = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    log("special cases ...")
+    specials = special_cases(cfg, studies)
+    t_specials = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    runs = []
+    for name in ("contact", "contact-nonreversible"):
+        for N in LONG_N:
+            log(f"long run: {name}, h = 2 sin(pi/{N}), {cfg['long_steps']} steps ...")
+            r = long_run(name, cfg["long_steps"], N)
+            log(f"  {r['wall']:.1f} s; max|dH| first/last 10%: {r['first10']:.2e} / {r['last10']:.2e}; "
+                f"drift {r['slope']:+.2e}; max phi {r['max_phi']:.1e}")
+            runs.append(r)
+    plot_long_runs(runs, out / "figures" / "long-runs-contact.png")
+    t_long = time.perf_counter() - t0
+
+    timings = {"studies": t_studies, "specials": t_specials, "long": t_long,
+               "total": time.perf_counter() - t_start}
+    write_report(out, cfg, opts.quick, studies, specials, runs, timings, info)
+    data = {
+        "generated": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "machine": info, "quick": opts.quick, "qp_plateau": QP_PLATEAU,
+        # to_dict() holds the refitted orders and the floors of this report
+        "studies": {n: st.to_dict() for n, (st, _, _) in studies.items()},
+        "long_runs": [{k: v for k, v in r.items() if not k.startswith("_")} for r in runs],
+        "timings_s": timings,
+    }
+    (out / "verification-data.json").write_text(json.dumps(data, indent=1) + "\n")
+    log(f"wrote {out / 'verification.md'} ({timings['total']:.0f} s)")
+    print(out / "verification.md")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,189 @@
+"""solve(), the single-step API, Solution contents, compilation caching and float64."""
+
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import lobattodae as L
+from lobattodae._solve import _run_chunk
+from lobattodae.examples import get_example
+
+
+@pytest.fixture(scope="module")
+def knife():
+    return get_example("knife-edge")
+
+
+def _solve(ex, s=3, n=40, **kw):
+    return L.solve(ex.problem, L.LobattoIIIAIIIB(stages=s), ex.t_span, ex.q0, ex.p0, n_steps=n, args=ex.args, **kw)
+
+
+def test_solution_shapes_and_contents(knife):
+    sol = _solve(knife, n=40)
+    assert sol.success and sol.status == L.Result.SUCCESSFUL
+    assert sol.t.shape == (41,) and sol.q.shape == (41, 3) and sol.p.shape == (41, 3) and sol.lam.shape == (41, 1)
+    assert sol.t[0] == knife.t_span[0] and sol.t[-1] == knife.t_span[1]
+    np.testing.assert_allclose(np.diff(sol.t), sol.stats["h"], rtol=1e-12)
+    assert sol.q.dtype == np.float64 and sol.lam.dtype == np.float64
+    st = sol.stats
+    assert st["newton_iterations"].shape == (40,) and np.all(st["newton_iterations"] >= 1)
+    assert st["constraint_residual"].shape == (41,)
+    assert st["residual_norm"].shape == (40,) and np.all(st["residual_norm"] < 1e-10)
+    assert st["n_jacobians"] >= 1 and st["failed_step"] is None
+    # λ0 was computed from the hidden constraint and equals the exact one
+    np.testing.assert_allclose(sol.lam[0], knife.lam0, atol=1e-14)
+    # accuracy against the closed form (s=3: 4th order in q)
+    qe, pe, le = knife.exact(sol.t)
+    assert np.max(np.abs(sol.q - qe)) < 1e-6
+
+
+def test_constraint_residual_tiny_at_every_step_long_run():
+    ex = get_example("falling-disk-general")
+    sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4, lam_start="consistent"), (0.0, 50.0), ex.q0, ex.p0,
+                  dt=0.05, args=ex.args)
+    assert sol.success
+    assert np.max(sol.stats["constraint_residual"]) <= 1e-12
+    # and the recomputed residual agrees with the stored one
+    from lobattodae._diagnostics import constraint_residual, energy_error
+
+    assert np.max(constraint_residual(sol)) <= 1e-12
+    assert np.max(np.abs(energy_error(sol))) < 1e-6
+
+
+def test_dt_rounds_to_equal_steps(knife):
+    sol = L.solve(knife.problem, L.LobattoIIIAIIIB(stages=2), (0.0, 1.0), knife.q0, knife.p0, dt=0.3, args=knife.args)
+    assert len(sol.t) == 5 and sol.stats["h"] == pytest.approx(0.25)
+    assert sol.t[-1] == 1.0
+
+
+def test_step_forward_then_backward_returns_to_start(knife):
+    m = L.LobattoIIIAIIIB(stages=4)
+    q0, p0, lam0 = map(jnp.asarray, (knife.q0, knife.p0, knife.lam0))
+    h = 0.1
+    q1, p1, lam1, info, _ = m.step(knife.problem, 0.0, q0, p0, lam0, h, knife.args)
+    assert int(info.result) == 0
+    qb, pb, lamb, info_b, _ = m.step(knife.problem, h, q1, p1, lam1, -h, knife.args)
+    assert int(info_b.result) == 0
+    # q, p: the Lobatto IIIA-IIIB pair is symmetric, so it returns to the start to round-off.
+    np.testing.assert_allclose(qb, q0, atol=1e-13)
+    np.testing.assert_allclose(pb, p0, atol=1e-13)
+    assert float(jnp.max(jnp.abs(qb - q1))) > 1e-3  # the step really moved
+
+
+def test_step_is_jittable_and_vmappable(knife):
+    m = L.LobattoIIIAIIIB(stages=3)
+    q0, p0, lam0 = map(jnp.asarray, (knife.q0, knife.p0, knife.lam0))
+    step = jax.jit(lambda q, p, l: m.step(knife.problem, 0.0, q, p, l, 0.05, knife.args)[:3])
+    single = step(q0, p0, lam0)
+    qs = jnp.stack([q0, q0 + jnp.array([1.0, 0.0, 0.0])])  # x shift keeps consistency
+    batched = jax.vmap(step)(qs, jnp.stack([p0, p0]), jnp.stack([lam0, lam0]))
+    for a, b in zip(single, batched):
+        np.testing.assert_allclose(b[0], a, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(batched[0][1], single[0] + jnp.array([1.0, 0, 0]), atol=1e-13)
+
+
+def test_second_call_with_same_shapes_does_not_recompile(knife):
+    m = L.LobattoIIIAIIIB(stages=2)
+    _solve(knife, s=2, n=100)
+    size = _run_chunk._cache_size()
+    sol = L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0 * 1.0, n_steps=100, args=knife.args)
+    assert sol.success
+    assert _run_chunk._cache_size() == size
+    # a different step count in the same power-of-two bucket reuses it too
+    L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=90, args=knife.args)
+    assert _run_chunk._cache_size() == size
+
+
+def test_long_run_is_one_compiled_loop_per_chunk(knife):
+    sol = L.solve(knife.problem, L.LobattoIIIAIIIB(stages=2), (0.0, 20.0), knife.q0, knife.p0,
+                  n_steps=10_000, args=knife.args, chunk_size=5000)
+    assert sol.success and len(sol.t) == 10_001
+
+
+def test_integrate_batched_matches_solve(knife):
+    m = L.LobattoIIIAIIIB(stages=3)
+    n, h = 20, 0.1
+    sol = L.solve(knife.problem, m, (0.0, n * h), knife.q0, knife.p0, n_steps=n, args=knife.args)
+    run = jax.jit(lambda q0, p0, lam0: L.integrate(knife.problem, m, 0.0, h, n, q0, p0, lam0, knife.args))
+    q, p, lam, status = run(knife.q0, knife.p0, knife.lam0)
+    assert int(status) == 0
+    # different compiled programs: equal to round-off, not necessarily bitwise
+    np.testing.assert_allclose(np.asarray(q), sol.q, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(np.asarray(lam), sol.lam, rtol=0, atol=1e-11)
+    shifts = jnp.array([[0.0, 0, 0], [2.0, -1.0, 0]])
+    qb, pb, lb, sb = jax.vmap(run, in_axes=(0, None, None))(knife.q0 + shifts, knife.p0, knife.lam0)
+    assert np.all(np.asarray(sb) == 0)
+    # vmap turns cond into select: the batched run equals the unbatched one to round-off
+    np.testing.assert_allclose(np.asarray(qb[0]), np.asarray(q), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(qb[1]), np.asarray(q) + np.array([2.0, -1.0, 0]), atol=1e-12)
+
+
+def test_repeated_runs_bitwise_identical(knife):
+    a = _solve(knife, s=4, n=30)
+    b = _solve(knife, s=4, n=30)
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.lam, b.lam)
+
+
+def test_multiplier_drift_warning_on_long_paper_scheme_run():
+    ex = get_example("sleigh")
+    with pytest.warns(RuntimeWarning, match="lam_start='consistent'"):
+        sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=5), (0.0, 130.0), ex.q0, ex.p0, n_steps=1300,
+                      args=ex.args, throw=False)
+    assert np.max(sol.stats["multiplier_drift"]) > 1.0
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=5, lam_start="consistent"), (0.0, 130.0), ex.q0,
+                      ex.p0, n_steps=1300, args=ex.args)
+    qe, pe, _ = ex.exact(np.array([130.0]))
+    assert np.max(np.abs(sol.q[-1] - qe[0])) < 1e-9
+
+
+def test_float64_without_user_configuration(tmp_path):
+    code = (
+        "import jax.numpy as jnp, numpy as np, lobattodae as L\n"
+        "sys = L.NonholonomicSystem(lambda t, q, p, a: 0.5 * p @ p, lambda t, q, a: jnp.array([[-q[1], 0., 1.]]))\n"
+        "sol = L.solve(sys, L.LobattoIIIAIIIB(stages=2), (0, 1), [0., 0., 0.], [1., 1., 0.], n_steps=4)\n"
+        "assert sol.q.dtype == np.float64 and jnp.zeros(1).dtype == jnp.float64, sol.q.dtype\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "ok" in out.stdout
+
+
+def test_float64_switched_off_is_an_error(knife):
+    jax.config.update("jax_enable_x64", False)
+    try:
+        with pytest.raises(RuntimeError, match="jax_enable_x64"):
+            _solve(knife)
+    finally:
+        jax.config.update("jax_enable_x64", True)
+
+
+def test_partitioned_dae_with_nonlinear_lambda():
+    """A general PartitionedDAE (g nonlinear in λ): λ0 by Newton, solve converges."""
+
+    def f(t, q, p, a):
+        return p
+
+    def g(t, q, p, lam, a):
+        return -q + jnp.array([0.0, lam[0] + 0.1 * lam[0] ** 3])
+
+    def phi(t, q, p, a):
+        return jnp.array([p[1] - 0.5 * q[0]])
+
+    prob = L.PartitionedDAE(f, g, phi, name="toy")
+    q0 = np.array([1.0, 0.0])
+    p0 = np.array([0.0, 0.5])
+    sol = L.solve(prob, L.LobattoIIIAIIIB(stages=3), (0.0, 1.0), q0, p0, n_steps=20)
+    assert sol.success
+    r = L.hidden_constraint(prob, 0.0, jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(sol.lam[0]))
+    assert float(jnp.max(jnp.abs(r))) < 1e-13
+    assert np.max(sol.stats["constraint_residual"]) < 1e-13
