@@ -56,6 +56,7 @@ class _Carry(NamedTuple):
     x: jax.Array
     k: jax.Array
     nrm_prev: jax.Array
+    theta_prev: jax.Array
     done: jax.Array
     result: jax.Array
     res_norm: jax.Array
@@ -111,14 +112,15 @@ def newton_solve(
         fresh = jnp.logical_or(c.fresh, need)
         finite = jnp.logical_and(jnp.all(jnp.isfinite(x)), jnp.all(jnp.isfinite(r)))
         stale = jnp.logical_and(reuse_jacobian, ~need)
-        # The rate estimate theta/(1-theta) |dx| is trusted only with a fresh Jacobian: with a
-        # stale one a single ratio of increments can grossly underestimate the rate.
+        # Hairer-Wanner: the remaining error is about theta/(1-theta) |dx|. With a stale
+        # Jacobian a single ratio of increments can grossly underestimate the rate, so there
+        # the larger of the last two ratios is used (and at least two are required).
+        have_two = jnp.logical_and(c.k >= 2, ~c.refresh)
+        theta_est = jnp.where(stale, jnp.maximum(theta, c.theta_prev), theta)
+        rate_ok = jnp.logical_and(~first, jnp.logical_or(~stale, have_two))
         converged = jnp.logical_or(
             nrm <= 1.0,
-            jnp.logical_and(
-                jnp.logical_and(~first, ~stale),
-                jnp.logical_and(theta < 1.0, theta / (1.0 - theta) * nrm <= 1.0),
-            ),
+            jnp.logical_and(rate_ok, jnp.logical_and(theta_est < 0.5, theta_est / (1.0 - theta_est) * nrm <= 1.0)),
         )
         slow = jnp.logical_and(~first, theta >= THETA_STAGNATION)
         # With a stale Jacobian, slow contraction only asks for a fresh one.
@@ -143,6 +145,7 @@ def newton_solve(
             x=jnp.where(finite, x, c.x),
             k=k,
             nrm_prev=nrm,
+            theta_prev=jnp.where(need, 1.0, theta),
             done=done,
             result=result,
             res_norm=jnp.max(jnp.abs(r)),
@@ -156,6 +159,7 @@ def newton_solve(
         x=x0,
         k=jnp.asarray(0, jnp.int32),
         nrm_prev=jnp.asarray(0.0, dtype),
+        theta_prev=jnp.asarray(1.0, dtype),
         done=jnp.asarray(False),
         result=jnp.asarray(-1, jnp.int32),
         res_norm=jnp.asarray(jnp.inf, dtype),

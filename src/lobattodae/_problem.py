@@ -19,6 +19,7 @@ __all__ = [
     "MechanicalSystem",
     "hidden_constraint",
     "consistent_lambda",
+    "vector_field",
 ]
 
 
@@ -70,6 +71,11 @@ class _HamiltonianMixin:
 
     def f(self, t, q, p, args):
         return jax.grad(self.hamiltonian, argnums=2)(t, q, p, args)
+
+    def f_and_g(self, t, q, p, lam, args):
+        """``(f, g)`` from one gradient of H (cheaper than ``f`` and ``g`` separately)."""
+        dh_dq, dh_dp = jax.grad(self.hamiltonian, argnums=(1, 2))(t, q, p, args)
+        return dh_dp, -dh_dq + self.constraint_matrix(t, q, args).T @ lam
 
     def g(self, t, q, p, lam, args):
         dh_dq = jax.grad(self.hamiltonian, argnums=1)(t, q, p, args)
@@ -135,11 +141,22 @@ class MechanicalSystem(_HamiltonianMixin):
         return jnp.linalg.solve(self.mass_matrix(t, q, args), p)
 
     def g(self, t, q, p, lam, args):
+        return self.f_and_g(t, q, p, lam, args)[1]
+
+    def f_and_g(self, t, q, p, lam, args):
         # -∂H/∂q = ½ vᵀ (∂M/∂q) v - ∇V with v = M⁻¹p held fixed: no derivative of the solve.
         v = self.f(t, q, p, args)
         kinetic = jax.grad(lambda qq: 0.5 * jnp.dot(v, self.mass_matrix(t, qq, args) @ v))(q)
         dv = jax.grad(lambda qq: self.potential(t, qq, args))(q)
-        return kinetic - dv + self.constraint_matrix(t, q, args).T @ lam
+        return v, kinetic - dv + self.constraint_matrix(t, q, args).T @ lam
+
+
+def vector_field(problem, t, q, p, lam, args=None):
+    """``(f(t, q, p), g(t, q, p, λ))``, through ``problem.f_and_g`` when it has one."""
+    both = getattr(problem, "f_and_g", None)
+    if both is not None:
+        return both(t, q, p, lam, args)
+    return problem.f(t, q, p, args), problem.g(t, q, p, lam, args)
 
 
 def hidden_constraint(problem, t, q, p, lam, args=None):
@@ -148,8 +165,7 @@ def hidden_constraint(problem, t, q, p, lam, args=None):
     Consistent initial values satisfy ``φ = 0`` and this ``= 0``.
     """
     t = jnp.asarray(t, dtype=q.dtype)
-    dq = problem.f(t, q, p, args)
-    dp = problem.g(t, q, p, lam, args)
+    dq, dp = vector_field(problem, t, q, p, lam, args)
     _, dphi = jax.jvp(
         lambda tt, qq, pp: problem.phi(tt, qq, pp, args),
         (t, q, p),

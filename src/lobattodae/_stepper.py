@@ -9,31 +9,34 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._problem import consistent_lambda
+from ._problem import consistent_lambda, vector_field
 from ._newton import JacobianCache, NewtonInfo, empty_jacobian_cache, newton_solve
 from ._tableau import LobattoPair, lobatto_pair
 
-__all__ = ["LobattoIIIAIIIB", "Stages", "StepperState", "StepInfo"]
+__all__ = ["LobattoIIIAIIIB", "StageSlopes", "StepperState", "StepInfo"]
 
 # Extrapolating the previous step's stage polynomial amplifies its values by the Lebesgue-type
 # constant max_i sum_j |l_j(1 + c_i)|; beyond this bound the explicit guess is used instead.
 _MAX_EXTRAPOLATION_GAIN = 1e4
 
 
-class Stages(NamedTuple):
-    """Stage values of one step: ``Q (s, n)``, ``P (s, n)``, ``Lam (s, m)``."""
+class StageSlopes(NamedTuple):
+    """Stage slopes of a step, kept to predict the next step's stages:
+    ``V (s, n)``, ``W (s, n)``, ``Lam (s, m)``."""
 
-    Q: jax.Array
-    P: jax.Array
+    V: jax.Array
+    W: jax.Array
     Lam: jax.Array
 
 
 class StepperState(NamedTuple):
-    """What a step hands to the next: the Jacobian cache and the last stages."""
+    """What a step hands to the next: the Jacobian cache and the last stage slopes."""
 
     jacobian: JacobianCache
-    stages: Stages
-    have_stages: jax.Array  # bool scalar
+    slopes: StageSlopes
+    correction: StageSlopes  # error of the plain extrapolation at the last step
+    have_slopes: jax.Array  # bool scalar
+    have_correction: jax.Array  # bool scalar
 
 
 class StepInfo(NamedTuple):
@@ -159,10 +162,13 @@ class LobattoIIIAIIIB:
         """Initial stepper state (no Jacobian yet, no previous stages)."""
         s, n, m = self.stages, q0.shape[-1], lam0.shape[-1]
         dtype = q0.dtype
+        zeros = StageSlopes(jnp.zeros((s, n), dtype), jnp.zeros((s, n), dtype), jnp.zeros((s, m), dtype))
         return StepperState(
             jacobian=empty_jacobian_cache(self.n_unknowns(n, m), dtype),
-            stages=Stages(jnp.zeros((s, n), dtype), jnp.zeros((s, n), dtype), jnp.zeros((s, m), dtype)),
-            have_stages=jnp.asarray(False),
+            slopes=zeros,
+            correction=zeros,
+            have_slopes=jnp.asarray(False),
+            have_correction=jnp.asarray(False),
         )
 
     def step(self, problem, t0, q0, p0, lam0, h, args: Any = None, state: StepperState | None = None):
@@ -192,15 +198,14 @@ class LobattoIIIAIIIB:
         if state is None:
             state = self.init(q0, p0, lam0)
         if self.lam_start == "consistent":
-            lam0 = consistent_lambda(problem, t0, q0, p0, lam0, args, iterations=2)
+            lam0 = consistent_lambda(problem, t0, q0, p0, lam0, args, iterations=1)
 
         a = jnp.asarray(pair.a, dtype)
         a_hat = jnp.asarray(pair.a_hat, dtype)
         c = jnp.asarray(pair.c, dtype)
         tj = t0 + c * h
 
-        f = jax.vmap(lambda t, q, p: problem.f(t, q, p, args))
-        g = jax.vmap(lambda t, q, p, lam: problem.g(t, q, p, lam, args))
+        fg = jax.vmap(lambda t, q, p, lam: vector_field(problem, t, q, p, lam, args))
         phi = jax.vmap(lambda t, q, p: problem.phi(t, q, p, args))
 
         def unpack(x):
@@ -215,7 +220,7 @@ class LobattoIIIAIIIB:
             return jnp.concatenate([Q[1:].ravel(), P.ravel(), Z[1:].ravel()])
 
         def slopes(Q, P, Z):
-            return f(tj, Q, P), g(tj, Q, P, Z / h)
+            return fg(tj, Q, P, Z / h)
 
         def residual(x):
             Q, P, Z = unpack(x)
@@ -226,7 +231,7 @@ class LobattoIIIAIIIB:
             r_phi = phi(tj[1:], Q[1:], p_tilde)
             return jnp.concatenate([r_q.ravel(), r_p.ravel(), r_phi.ravel()])
 
-        x0 = self._initial_guess(problem, tj, q0, p0, lam0, h, args, state, c, pack)
+        x0, plain = self._initial_guess(lam0, h, state, q0, p0, a, a_hat, pack)
         x, ninfo, cache = newton_solve(
             residual,
             x0,
@@ -236,28 +241,43 @@ class LobattoIIIAIIIB:
             reuse_jacobian=self.reuse_jacobian,
         )
         Q, P, Z = unpack(x)
-        V, W = slopes(Q, P, Z)
+        lam = Z / h
+        V, W = fg(tj, Q, P, lam)
         b = jnp.asarray(pair.b, dtype)
         q1 = Q[-1]
         p1 = p0 + h * (b @ W)
-        lam = Z / h
         lam1 = lam[-1]
         info = StepInfo(ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians)
-        new_state = StepperState(cache, Stages(Q, P, lam), jnp.asarray(True))
+        slopes = StageSlopes(V, W, lam)
+        have_correction = jnp.logical_and(state.have_slopes, plain is not None)
+        correction = slopes if plain is None else jax.tree_util.tree_map(jnp.subtract, slopes, plain)
+        new_state = StepperState(cache, slopes, correction, jnp.asarray(True), have_correction)
         return q1, p1, lam1, info, new_state
 
-    def _initial_guess(self, problem, tj, q0, p0, lam0, h, args, state, c, pack):
-        v0 = problem.f(tj[0], q0, p0, args)
-        w0 = problem.g(tj[0], q0, p0, lam0, args)
-        Q = q0 + (c * h)[:, None] * v0
-        P = p0 + (c * h)[:, None] * w0
-        Lam = jnp.broadcast_to(lam0, (self.stages, lam0.shape[0]))
-        explicit = pack(Q, P, h * Lam)
+    def _initial_guess(self, lam0, h, state, q0, p0, a, a_hat, pack):
+        """Newton's starting point, and the plain extrapolation of the slopes (or None).
+
+        From the second step on, the previous step's slopes ``V, W`` and multipliers ``Λ`` are
+        extrapolated (Lagrange interpolation at ``c``, evaluated at ``1 + c``), corrected by
+        the error this extrapolation made at the previous step, and the stages rebuilt from the
+        *new* ``q0, p0``: ``Q = q0 + h A V``, ``P = p0 + h Â W``. The IIIB stages (and with
+        them the slopes) deviate from a smooth polynomial by O(h^(s-1)) in a pattern that
+        varies smoothly from step to step, which the correction removes. First step: constant
+        stages ``(q0, p0, λ0)``.
+        """
+        s = self.stages
+        constant = pack(
+            jnp.broadcast_to(q0, (s, q0.shape[0])),
+            jnp.broadcast_to(p0, (s, p0.shape[0])),
+            jnp.broadcast_to(h * lam0, (s, lam0.shape[0])),
+        )
         e = self._extrapolation_matrix() if self.extrapolate else None
         if e is None:
-            return explicit
+            return constant, None
         e = jnp.asarray(e, q0.dtype)
-        prev = state.stages
-        extrap = pack(e @ prev.Q, e @ prev.P, h * (e @ prev.Lam))
-        usable = jnp.logical_and(state.have_stages, jnp.all(jnp.isfinite(extrap)))
-        return jnp.where(usable, extrap, explicit)
+        plain = StageSlopes(*(e @ x for x in state.slopes))
+        use_corr = state.have_correction
+        V, W, Lam = (jnp.where(use_corr, x + d, x) for x, d in zip(plain, state.correction))
+        extrap = pack(q0 + h * (a @ V), p0 + h * (a_hat @ W), h * Lam)
+        usable = jnp.logical_and(state.have_slopes, jnp.all(jnp.isfinite(extrap)))
+        return jnp.where(usable, extrap, constant), plain
