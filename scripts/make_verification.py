@@ -687,15 +687,17 @@ def write_report(out_dir: Path, cfg, quick, studies, specials, long_runs, timing
     rl = [(n, r) for n, r in rl if r is not None]
     if rl:
         worst = {c: max(r[c] for _, r in rl) for c in ("q", "p")}
-        min_floor = {c: min(st.floors[c] for st, _, _ in studies.values()) for c in ("q", "p")}
-        ok = all(min_floor[c] >= 3 * worst[c] for c in ("q", "p"))
+        # per example and component: floor / measured round-off level
+        ratios = sorted((studies[n][0].floors[c] / r[c], n, c) for n, r in rl for c in ("q", "p"))
+        rmin, rn, rc = ratios[0]
         L.append(
             f"Measured round-off level (largest q, p error of the s = {max(cfg['stages'])} runs "
-            f"with h ≤ T/32, where the truncation error is far below eps): q {worst['q']:.1e}, "
-            f"p {worst['p']:.1e}; the smallest q, p floors used are {min_floor['q']:.1e}, "
-            f"{min_floor['p']:.1e}"
-            + (" — at least 3× above it." if ok else
-               " — **less than 3× above it: the q, p fits may touch round-off.**"))
+            f"with h ≤ T/32, where the truncation error is far below eps): up to "
+            f"{worst['q']:.1e} in q and {worst['p']:.1e} in p. Per example, the q/p floor is at "
+            f"least {rmin:.1f}× the example's own round-off level (smallest: {rn}, {LABEL[rc]})"
+            + ("." if rmin >= 3 else
+               " — **less than 3×: the finest fitted q/p points of that example may carry "
+               "round-off of up to a third of their size.**"))
     L.append("")
     L.append(
         "Step counts: the library's `default_step_counts` for s ≤ 4"

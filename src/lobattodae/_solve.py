@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import functools
+import json
 import math
+import os
 import sys
 import time
 import warnings
@@ -218,6 +220,10 @@ def solve(
     project_initial: bool = False,
     chunk_size: int | None = None,
     progress: bool | Callable[[int, int], None] = False,
+    max_recoveries: int = 0,
+    checkpoint: str | os.PathLike | None = None,
+    checkpoint_every: int | None = None,
+    resume: bool = False,
 ) -> Solution:
     """Integrate a partitioned index-2 DAE from ``t_span[0]`` to ``t_span[1]``.
 
@@ -248,6 +254,18 @@ def solve(
         ``True`` prints a progress bar to stderr; a callable is called as
         ``progress(steps_done, n_steps)`` after each chunk. Ctrl-C between chunks returns the
         computed prefix with status ``INTERRUPTED``.
+    max_recoveries : int
+        Automatic recovery (off by default): a step whose Newton iteration fails is retried as
+        2, 4, 8 or 16 substeps, at most this many times per solve; ``stats["recoveries"]``
+        counts them. The recovered step restarts the Jacobian cache and the predictor.
+    checkpoint : path, optional
+        Write the computed prefix and the loop state to this ``.npz`` file every
+        ``checkpoint_every`` steps (at chunk boundaries), at the end, and on Ctrl-C.
+    checkpoint_every : int, optional
+    resume : bool
+        Continue from ``checkpoint`` if it exists (it must come from the same problem set-up:
+        method, t_span, step and initial values are checked). A resumed run gives the same
+        numbers, bit for bit, as an uninterrupted one.
 
     Returns
     -------
@@ -266,70 +284,176 @@ def solve(
 
     q0j, p0j, lam0j = jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0)
     carry = _Carry(q0j, p0j, lam0j, method.init(q0j, p0j, lam0j), jnp.asarray(False))
-    outs: list[_StepOut] = []
+    meta = _checkpoint_meta(method, t0, t1, n, h, length, q0, p0, lam0)
+    accepted: list[_StepOut] = []
+    done, recoveries = 0, 0
+    if checkpoint is not None and resume and os.path.exists(checkpoint):
+        done, recoveries, accepted, carry = _load_checkpoint(checkpoint, meta, carry)
+    elif resume and checkpoint is None:
+        raise LobattoDAEInputError("resume=True needs the checkpoint file to resume from (checkpoint=PATH).")
+    if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
+        raise LobattoDAEInputError(f"max_recoveries must be a non-negative integer; got {max_recoveries!r}.")
+    if checkpoint_every is not None and (not isinstance(checkpoint_every, int) or checkpoint_every < 1):
+        raise LobattoDAEInputError(f"checkpoint_every must be a positive integer; got {checkpoint_every!r}.")
     interrupted = False
+    failure: tuple[int, int, _StepOut] | None = None
     start = time.perf_counter()
     t0j, hj = jnp.asarray(t0), jnp.asarray(h)
-    done = 0
+    last_saved = done
     try:
         while done < n:
-            carry, out = _run_chunk(problem, method, length, jnp.asarray(done), n, t0j, hj, carry, args)
+            new_carry, out = _run_chunk(problem, method, length, jnp.asarray(done), n, t0j, hj, carry, args)
             out = jax.tree_util.tree_map(np.asarray, out)
-            outs.append(out)
-            done += length
+            bad = np.flatnonzero(out.result > 0)
+            n_good = int(bad[0]) if bad.size else int(np.count_nonzero(out.result == Result.SUCCESSFUL))
+            accepted.append(_rows(out, 0, n_good))
+            done += n_good
+            carry = new_carry
+            if bad.size:
+                row = _rows(out, n_good, n_good + 1)
+                rec = None
+                if recoveries < max_recoveries:
+                    rec = _recover_step(problem, method, args, t0 + done * h, h, carry)
+                if rec is None:
+                    failure = (done, int(out.result[n_good]), row)
+                    break
+                carry, rec_row = rec
+                accepted.append(rec_row)
+                done += 1
+                recoveries += 1
             if report is not None:
-                report(min(done, n), n)
-            if bool(carry.failed):
-                break
+                report(done, n)
+            if checkpoint is not None and checkpoint_every is not None and done - last_saved >= checkpoint_every:
+                _save_checkpoint(checkpoint, meta, done, recoveries, accepted, carry)
+                last_saved = done
     except KeyboardInterrupt:
         interrupted = True
+    if checkpoint is not None and (interrupted or done > last_saved):
+        _save_checkpoint(checkpoint, meta, done, recoveries, accepted, carry)
     elapsed = time.perf_counter() - start
-    return _assemble(problem, method, args, t0, t1, h, n, q0, p0, lam0, outs, interrupted, throw, elapsed)
+    return _assemble(
+        problem, method, args, t0, t1, h, n, q0, p0, lam0, accepted, failure, interrupted, throw, elapsed, recoveries
+    )
 
 
-def _assemble(problem, method, args, t0, t1, h, n, q0, p0, lam0, outs, interrupted, throw, elapsed) -> Solution:
-    if outs:
-        out = _StepOut(*(np.concatenate(xs)[:n] for xs in zip(*outs)))
-    else:
-        out = _StepOut(
-            np.zeros((0, q0.size)), np.zeros((0, p0.size)), np.zeros((0, lam0.size)),
-            np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0), np.zeros(0, np.int32), np.zeros(0),
+def _rows(out: _StepOut, i: int, j: int) -> _StepOut:
+    return _StepOut(*(x[i:j] for x in out))
+
+
+#: Automatic recovery retries a failed step as 2, 4, 8, 16 substeps (one compiled chunk of 16).
+_RECOVERY_HALVINGS = 4
+
+
+def _recover_step(problem, method, args, t_start, h, carry: _Carry):
+    """Retry one failed step of size h as 2^j substeps; return (carry, one output row) or None.
+
+    The Jacobian cache and the predictor are reset (they belong to the step size h); the
+    step's statistics are the sums over the substeps.
+    """
+    length = 1 << _RECOVERY_HALVINGS
+    for j in range(1, _RECOVERY_HALVINGS + 1):
+        m = 1 << j
+        fresh = _Carry(carry.q, carry.p, carry.lam, method.init(carry.q, carry.p, carry.lam), jnp.asarray(False))
+        sub_carry, out = _run_chunk(
+            problem, method, length, jnp.asarray(0), m, jnp.asarray(t_start), jnp.asarray(h / m), fresh, args
         )
-    codes = out.result
-    taken = codes != _SKIPPED
-    failed_idx = np.flatnonzero(codes > 0)
-    failed_step = int(failed_idx[0]) if failed_idx.size else None
-    n_ok = failed_step if failed_step is not None else int(np.sum(taken))
+        out = jax.tree_util.tree_map(np.asarray, out)
+        if np.all(out.result[:m] == Result.SUCCESSFUL):
+            row = _StepOut(
+                out.q[m - 1 : m], out.p[m - 1 : m], out.lam[m - 1 : m], out.result[m - 1 : m],
+                np.asarray([out.iterations[:m].sum()], np.int32), np.asarray([out.residual_norm[:m].max()]),
+                np.asarray([out.n_jacobians[:m].sum()], np.int32), out.constraint[m - 1 : m],
+            )
+            new = _Carry(
+                sub_carry.q, sub_carry.p, sub_carry.lam,
+                method.init(sub_carry.q, sub_carry.p, sub_carry.lam), jnp.asarray(False),
+            )
+            return new, row
+    return None
+
+
+def _checkpoint_meta(method, t0, t1, n, h, length, q0, p0, lam0) -> dict:
+    return {
+        "format": "lobattodae-checkpoint-1",
+        "method": repr(method),
+        "t0": t0, "t1": t1, "n_steps": n, "h": h, "chunk": length,
+        "q0": np.asarray(q0).tolist(), "p0": np.asarray(p0).tolist(), "lam0": np.asarray(lam0).tolist(),
+    }
+
+
+def _save_checkpoint(path, meta, done, recoveries, accepted, carry: _Carry) -> None:
+    """Write the computed prefix and the loop state atomically (temporary file + rename)."""
+    rows = _concat(accepted, carry)
+    leaves = jax.tree_util.tree_leaves(carry)
+    payload = {f"leaf_{i}": np.asarray(x) for i, x in enumerate(leaves)}
+    payload.update({f"out_{name}": np.asarray(x) for name, x in zip(_StepOut._fields, rows)})
+    tmp = f"{path}.tmp"
+    with open(tmp, "wb") as fh:
+        np.savez(fh, meta=json.dumps(meta), done=done, recoveries=recoveries, **payload)
+    os.replace(tmp, path)
+
+
+def _load_checkpoint(path, meta, template: _Carry):
+    with np.load(path, allow_pickle=False) as data:
+        saved = json.loads(str(data["meta"]))
+        if saved != meta:
+            diff = sorted(k for k in set(saved) | set(meta) if saved.get(k) != meta.get(k))
+            raise LobattoDAEInputError(
+                f"checkpoint {path!r} belongs to a different run (differs in: {', '.join(diff)}); "
+                "resume with the same problem, method, t_span, step and initial values, or delete it."
+            )
+        leaves, treedef = jax.tree_util.tree_flatten(template)
+        restored = [jnp.asarray(data[f"leaf_{i}"], dtype=leaf.dtype) for i, leaf in enumerate(leaves)]
+        carry = jax.tree_util.tree_unflatten(treedef, restored)
+        rows = _StepOut(*(data[f"out_{name}"] for name in _StepOut._fields))
+        return int(data["done"]), int(data["recoveries"]), [rows], carry
+
+
+def _concat(accepted: list[_StepOut], carry: _Carry) -> _StepOut:
+    if accepted:
+        return _StepOut(*(np.concatenate(xs) for xs in zip(*accepted)))
+    n, m = carry.q.shape[0], carry.lam.shape[0]
+    return _StepOut(
+        np.zeros((0, n)), np.zeros((0, n)), np.zeros((0, m)), np.zeros(0, np.int32), np.zeros(0, np.int32),
+        np.zeros(0), np.zeros(0, np.int32), np.zeros(0),
+    )
+
+
+def _assemble(
+    problem, method, args, t0, t1, h, n, q0, p0, lam0, accepted, failure, interrupted, throw, elapsed, recoveries
+) -> Solution:
+    n_ok = sum(len(a.result) for a in accepted)
+    out = _concat(accepted, _Carry(jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0), None, None))
     # Non-finite values reported as success would be a bug upstream; never let them through.
-    good = slice(0, n_ok)
-    bad = ~(np.all(np.isfinite(out.q[good]), axis=1) & np.all(np.isfinite(out.p[good]), axis=1)
-            & np.all(np.isfinite(out.lam[good]), axis=1))
-    if np.any(bad):
-        first = int(np.flatnonzero(bad)[0])
-        failed_step, n_ok = first, first
-        status = Result.NONFINITE
-    elif failed_step is not None:
-        status = Result(int(codes[failed_step]))
+    finite = (np.all(np.isfinite(out.q), axis=1) & np.all(np.isfinite(out.p), axis=1)
+              & np.all(np.isfinite(out.lam), axis=1))
+    failed_step, status = None, Result.SUCCESSFUL
+    if not np.all(finite):
+        n_ok = int(np.flatnonzero(~finite)[0])
+        failed_step, status = n_ok, Result.NONFINITE
+    elif failure is not None:
+        failed_step, status = failure[0], Result(failure[1])
     elif n_ok < n:
-        status = Result.INTERRUPTED if interrupted else Result.SUCCESSFUL
-    else:
-        status = Result.SUCCESSFUL
+        status = Result.INTERRUPTED
+    out = _rows(out, 0, n_ok)
     tk = t0 + np.arange(n_ok + 1) * h
     if n_ok == n:
         tk[-1] = t1
-    q = np.vstack([q0[None], out.q[:n_ok]])
-    p = np.vstack([p0[None], out.p[:n_ok]])
-    lam = np.vstack([lam0[None], out.lam[:n_ok]])
+    q = np.vstack([q0[None], out.q])
+    p = np.vstack([p0[None], out.p])
+    lam = np.vstack([lam0[None], out.lam])
     phi0 = float(np.max(np.abs(np.asarray(problem.phi(jnp.asarray(t0), jnp.asarray(q0), jnp.asarray(p0), args)))))
     drift = _multiplier_drift(problem, tk, q, p, lam, args)
+    n_jac = int(np.sum(out.n_jacobians)) + (int(failure[2].n_jacobians[0]) if failure is not None else 0)
     stats = {
-        "newton_iterations": out.iterations[:n_ok],
-        "residual_norm": out.residual_norm[:n_ok],
-        "constraint_residual": np.concatenate([[phi0], out.constraint[:n_ok]]),
-        "n_jacobians": int(np.sum(out.n_jacobians[:n_ok + (1 if failed_step is not None else 0)])),
+        "newton_iterations": out.iterations,
+        "residual_norm": out.residual_norm,
+        "constraint_residual": np.concatenate([[phi0], out.constraint]),
+        "n_jacobians": n_jac,
         "h": h,
         "n_steps": n,
         "failed_step": failed_step,
+        "recoveries": recoveries,
         "compile_and_run_time": elapsed,
         "multiplier_drift": drift,
     }

@@ -1,0 +1,122 @@
+"""Observed orders for every example with a closed form, s = 2..5, per component.
+
+The expectation is explicit: ``Example.expected_order(component, s)``, i.e. the paper's
+Corollary (q, p: 2s-2; λ: s for even s, s-1 for odd s) unless the example records a known
+deviation in ``expected_order_overrides`` (e.g. the vertical rolling disk's p converges with
+order 2s for even s). ``None`` means "exact up to round-off": then every error of the study
+must lie at round-off. The tolerance is 0.3 on the fitted order and is not loosened per case.
+
+The sleigh and the steady falling disk are covered by ``tests/test_orders.py`` and skipped
+here (they are the most expensive studies).
+"""
+
+import numpy as np
+import pytest
+
+import lobattodae as L
+from lobattodae._convergence import COMPONENTS, convergence_study
+from lobattodae.examples import get_example, list_examples
+
+TOL = 0.3
+STAGES = (2, 3, 4, 5)
+COVERED_ELSEWHERE = {"sleigh", "falling-disk"}  # tests/test_orders.py
+CLOSED_FORM = [name for name, _ in list_examples() if get_example(name).exact is not None]
+NAMES = [name for name in CLOSED_FORM if name not in COVERED_ELSEWHERE]
+
+#: (example, s, component) where the default study is known to measure a wrong order.
+#: Particle, s = 5, p: the default grid's points above the round-off floor (1e-12·(1+|p|),
+#: i.e. n ≤ 8 steps on [0, 2]) are pre-asymptotic; the maximum error over the grid has local
+#: slopes 10.3, 12.4, 9.8, 4.6 for n = 4..8 and the fit gives 9.78. The asymptotic regime
+#: (local slopes 7.3, 7.4, 7.6, 7.7, 7.9 for n = 10..20, errors 8e-13 .. 4e-15) lies below
+#: the floor, so no choice of n_steps fixes the fit. It is not superconvergence: with y0 = -1
+#: the same problem shows order 8.00 cleanly (test_particle_s5_p_is_order_8_in_asymptotic_regime).
+KNOWN_PREASYMPTOTIC = {("particle", 5, "p")}
+
+
+def test_every_closed_form_example_is_covered():
+    assert set(CLOSED_FORM) == set(NAMES) | COVERED_ELSEWHERE
+    assert {"particle", "knife-edge", "vertical-disk"} <= set(NAMES)
+
+
+def _cases():
+    for name in NAMES:
+        for s in STAGES:
+            for comp in COMPONENTS:
+                marks = ()
+                if (name, s, comp) in KNOWN_PREASYMPTOTIC:
+                    marks = pytest.mark.xfail(
+                        strict=True,
+                        reason="default grid pre-asymptotic above the round-off floor: fits 9.78 instead of 8 "
+                        "(see KNOWN_PREASYMPTOTIC)",
+                    )
+                yield pytest.param(name, s, comp, marks=marks, id=f"{name}-s{s}-{comp}")
+
+
+@pytest.fixture(scope="module")
+def studies():
+    return {}
+
+
+def _study_for(name, cache):
+    if name not in cache:
+        ex = get_example(name)
+        cache[name] = (ex, convergence_study(ex, stages=STAGES))
+    return cache[name]
+
+
+@pytest.mark.parametrize("name, s, comp", list(_cases()))
+def test_observed_order(name, s, comp, studies):
+    ex, st = _study_for(name, studies)
+    expected = ex.expected_order(comp, s)
+    errors = np.asarray(st.errors[s][comp])
+    table = "  ".join(f"n={n}: {e:.1e}" for n, e in zip(st.n_steps[s], errors))
+    if expected is None:
+        assert np.all(errors <= st.floors[comp]), f"{name} s={s} {comp} should be exact: {table}"
+        return
+    obs = st.observed[s][comp]
+    assert np.isfinite(obs), f"{name} s={s} {comp}: no points above the round-off floor: {table}"
+    assert abs(obs - expected) <= TOL, f"{name} s={s} {comp}: observed {obs:.2f}, expected {expected}; {table}"
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_constraint_exact_and_errors_decrease(name, studies):
+    ex, st = _study_for(name, studies)
+    for s in STAGES:
+        assert st.constraint_residual[s] <= 1e-12, (name, s)
+        for comp in COMPONENTS:
+            e = np.asarray(st.errors[s][comp])
+            # coarsest vs finest step: the error must drop (by at least h-ratio^1 here)
+            ratio = st.h[s][0] / st.h[s][-1]
+            assert e[-1] <= max(e[0] / ratio, 10 * st.floors[comp]), (name, s, comp, e)
+
+
+def test_overrides_are_real_superconvergence(studies):
+    """Each recorded override is above the default order, and the study confirms it."""
+    checked = 0
+    for name in NAMES:
+        ex = get_example(name)
+        for comp, table in ex.expected_order_overrides.items():
+            for s, order in table.items():
+                if s not in STAGES:
+                    continue
+                _, st = _study_for(name, studies)
+                default = L.LobattoIIIAIIIB(stages=s).order()[comp]
+                if order is None:
+                    assert np.all(np.asarray(st.errors[s][comp]) <= st.floors[comp])
+                else:
+                    assert order > default
+                    assert st.observed[s][comp] > default + 1.0, (name, s, comp, st.observed[s][comp])
+                checked += 1
+    assert checked >= 2  # at least the vertical disk's p for s = 2 and 4
+
+
+def test_particle_s5_p_is_order_8_in_asymptotic_regime():
+    """Why particle s=5 p is an xfail above and not superconvergence: starting at y0 = -1
+    (so that y runs through [-1, 1]) the p error is larger and in its asymptotic regime
+    above the round-off floor, and the order is the Corollary's 8."""
+    ex = get_example("particle", y0=-1.0)
+    # chunk length 64 as in the default study for s = 5 (reuses its compilation)
+    st = convergence_study(ex, stages=(5,), n_steps=(6, 8, 10, 12, 16, 64))
+    for comp in ("q", "p"):
+        assert abs(st.observed[5][comp] - 8) <= TOL, (comp, st.observed[5][comp], st.errors[5][comp])
+    assert abs(st.observed[5]["lam"] - 4) <= TOL
