@@ -41,7 +41,7 @@ import warnings
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from baselines import RESULTS_DIR, McLachlanPerlmutter  # noqa: E402
+from baselines import RESULTS_DIR, McLachlanPerlmutter, source_revision  # noqa: E402
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -177,7 +177,7 @@ def part_stages(quick: bool):
 
 
 def part_size(quick: bool):
-    sizes = [1, 4, 16] if quick else [1, 2, 4, 8, 16, 33]
+    sizes = [1, 4] if quick else [1, 2, 4, 8, 16, 33]
     out = {}
     for k in sizes:
         problem, q0, p0, args = particle_chain(k)
@@ -278,12 +278,19 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description="lobattodae step cost (issue #4)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--parts", nargs="*", default=["stages", "size", "first_call"])
+    ap.add_argument("--watchdog", type=float, default=1800.0,
+                    help="abort with a traceback after this many seconds (0: off)")
     a = ap.parse_args(argv)
     start = time.perf_counter()
+    if a.watchdog > 0:  # a hung XLA call prints every thread's traceback and exits
+        import faulthandler
+
+        faulthandler.dump_traceback_later(a.watchdog, exit=True)
     jnp.zeros(1).block_until_ready()
     res = {"meta": {"date": datetime.datetime.now().isoformat(timespec="seconds"),
                     "machine": f"{platform.machine()}, {os.cpu_count()} cores",
                     "jax": jax.__version__, "lobattodae": L.__version__, "quick": a.quick, "h": H,
+                    "lobattodae_revision": source_revision(), "lobattodae_path": os.path.dirname(L.__file__),
                     "loadavg_start": os.getloadavg()}}
     if "stages" in a.parts:
         _log("== time per step vs s (falling rolling disk, h = 0.05) ==")

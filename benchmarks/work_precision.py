@@ -53,6 +53,7 @@ from baselines import (  # noqa: E402
     RunRecord,
     binned_max,
     ida_available,
+    source_revision,
     time_best,
 )
 
@@ -84,14 +85,14 @@ def config(quick: bool) -> dict:
     return {
         "T": 1000.0,
         "problems": ["sleigh", "knife-edge", "falling-disk"],
-        "chunk": 4096,
-        "lobatto": {2: [5000, 20000, 80000], 3: [5000, 10000, 20000, 40000, 80000],
-                    4: [5000, 10000, 20000, 40000], 5: [5000, 10000, 20000, 40000]},
+        "chunk": None,  # lobattodae's default: next power of two >= N, at most 4096
+        "lobatto": {2: [5000, 20000, 80000], 3: [2000, 5000, 10000, 20000, 40000, 80000],
+                    4: [1000, 2000, 5000, 10000, 20000, 40000], 5: [1000, 2000, 5000, 10000, 20000, 40000]},
         # the paper's scheme (lam_start="previous"), fewer step sizes
         "lobatto_previous": {2: [20000], 3: [10000, 40000], 4: [10000, 40000], 5: [10000, 40000]},
-        "dop853": [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12, 1e-13],
+        "dop853": [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12, 1e-13, 3e-14],
         "radau": [1e-4, 1e-6, 1e-8, 1e-10],
-        "diffrax": [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12, 1e-13],
+        "diffrax": [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12, 1e-13, 3e-14],
         "ida": [1e-4, 1e-6, 1e-8, 1e-10, 1e-11],
         "mp": [10_000, 100_000, 1_000_000],
         "run_budget": 12.0,  # skip a setting predicted to take longer than this [s]
@@ -147,10 +148,12 @@ def run_lobatto(ex, cfg, diag, q_exact, H0, records):
                     caught[:] = [str(x.message) for x in w]
                     return sol
 
+                # warm-up: compiles the chunk (first N of each s: reported as compile+run) and
+                # anything solve compiles per trajectory length
                 first = None
+                t0 = time.perf_counter()
+                sol = call()
                 if compile_run is None:
-                    t0 = time.perf_counter()
-                    sol = call()
                     compile_run = first = time.perf_counter() - t0
                 wall, reps, sol = time_best(call, cfg["repeats"])
                 per_step = wall / N
@@ -167,7 +170,7 @@ def run_lobatto(ex, cfg, diag, q_exact, H0, records):
                     extra={"h": T / N, "integrate_time": float(sol.stats["compile_and_run_time"]),
                            "newton_iterations_mean": float(np.mean(its)) if its.size else math.nan,
                            "n_jacobians": int(sol.stats["n_jacobians"]), "us_per_step": 1e6 * wall / N,
-                           "lam_start": variant, "warned": bool(caught)},
+                           "lam_start": variant, "warned": bool(caught), "cpu": time_best.last_cpu},
                     series=ser, ok=ok, message=msg,
                 )
                 records.append(rec)
@@ -187,7 +190,7 @@ def run_scipy(ex, cfg, ode, diag, q_exact, H0, records, method, tols):
         err = float(np.max(np.abs(r.y[:n, -1] - q_exact))) if ok else math.nan
         max_phi, max_dH, ser = _series(diag, r.t, r.y[:n].T, r.y[n:].T, H0, 0.0, T)
         rec = RunRecord(f"scipy {method}", f"tol={tol:g}", wall, reps, None, err, max_phi, max_dH, len(r.t) - 1,
-                        extra={"nfev": int(r.nfev), "njev": int(getattr(r, "njev", 0) or 0)},
+                        extra={"nfev": int(r.nfev), "njev": int(getattr(r, "njev", 0) or 0), "cpu": time_best.last_cpu},
                         series=ser, ok=ok, message="" if ok else str(r.message))
         records.append(rec)
         _log(f"    scipy {method} tol={tol:g}: err={err:.2e} wall={wall:.3f}s (x{reps}) steps={len(r.t) - 1} "
@@ -220,7 +223,7 @@ def run_diffrax(ex, cfg, ode, diag, q_exact, H0, records):
             max_phi = max_dH = math.nan
             ser = {}
         rec = RunRecord("diffrax Dopri8", f"tol={tol:g}", wall, reps, first_rec, err, max_phi, max_dH, int(nacc),
-                        extra={"num_steps": int(nsteps)}, series=ser, ok=ok,
+                        extra={"num_steps": int(nsteps), "cpu": time_best.last_cpu}, series=ser, ok=ok,
                         message="" if ok else f"diffrax result code {int(code)}")
         records.append(rec)
         _log(f"    diffrax Dopri8 tol={tol:g}: err={err:.2e} wall={wall:.4f}s (x{reps}) steps={int(nacc)} "
@@ -237,7 +240,7 @@ def run_ida(ex, cfg, diag, q_exact, H0, records):
         err = float(np.max(np.abs(r.y[-1, :n] - q_exact))) if ok else math.nan
         max_phi, max_dH, ser = _series(diag, r.t, r.y[:, :n], r.y[:, n:2 * n], H0, 0.0, T)
         rec = RunRecord("SUNDIALS IDA", f"tol={tol:g}", wall, reps, None, err, max_phi, max_dH, r.n_steps,
-                        extra={"nfev": r.nfev, "njev": r.njev, "lambda_in_error_test": False},
+                        extra={"nfev": r.nfev, "njev": r.njev, "lambda_in_error_test": False, "cpu": time_best.last_cpu},
                         series=ser, ok=ok, message="" if ok else r.message)
         records.append(rec)
         _log(f"    IDA tol={tol:g}: err={err:.2e} wall={wall:.3f}s (x{reps}) steps={r.n_steps} nfev={r.nfev} "
@@ -272,7 +275,7 @@ def run_mp(ex, cfg, diag, q_exact, H0, records):
         rec = RunRecord("McLachlan-Perlmutter", f"N={N}", wall, reps, first_rec, err, max_phi, max_dH, N,
                         extra={"h": r["h"], "newton_iterations_mean": r["newton_iterations_mean"],
                                "nonconverged_steps": r["nonconverged_steps"], "us_per_step": 1e6 * wall / N,
-                               "diagnostics_sampled_every": N // 500},
+                               "diagnostics_sampled_every": N // 500, "cpu": time_best.last_cpu},
                         series=ser, ok=bool(ok), message="" if ok else "Newton did not converge on some steps")
         records.append(rec)
         _log(f"    McLachlan-Perlmutter N={N}: err={err:.2e} wall={wall:.3f}s (x{reps}) "
@@ -383,6 +386,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description="work-precision benchmark (issue #4)")
     ap.add_argument("--quick", action="store_true", help="reduced version (< 1 min)")
     ap.add_argument("--problems", nargs="*", help="subset of problems")
+    ap.add_argument("--watchdog", type=float, default=1800.0,
+                    help="abort with a traceback after this many seconds (0: off)")
     a = ap.parse_args(argv)
     cfg = config(a.quick)
     if a.problems:
@@ -390,6 +395,10 @@ def main(argv=None):
     cfg["lam_start"] = lobatto_variants()
     T = cfg["T"]
     start = time.perf_counter()
+    if a.watchdog > 0:  # a hung XLA call prints every thread's traceback and exits
+        import faulthandler
+
+        faulthandler.dump_traceback_later(a.watchdog, exit=True)
     jnp.zeros(1).block_until_ready()  # JAX backend initialisation is not charged to anyone
     ida_ok, ida_why = ida_available()
     meta = {
@@ -398,6 +407,8 @@ def main(argv=None):
         "python": platform.python_version(),
         "jax": jax.__version__,
         "lobattodae": L.__version__,
+        "lobattodae_revision": source_revision(),
+        "lobattodae_path": os.path.dirname(L.__file__),
         "ida": ida_why,
         "quick": a.quick,
         "loadavg_start": os.getloadavg(),
@@ -442,6 +453,8 @@ def main(argv=None):
             entry["dynamics"] = sleigh_dynamics_note(ex, T)
         out["problems"][name] = entry
         _log(f"  ({entry['seconds']:.0f} s for {name})")
+        with open(os.path.join(RESULTS_DIR, f"work_precision{suffix}.json"), "w") as fh:  # partial results
+            json.dump(out, fh, indent=1, default=float)
 
     # ---- table
     _log("\n" + "=" * 118)

@@ -863,7 +863,7 @@ def long_text(runs):
             "**Non-reversible oscillator.** " + stop
             + check(drift,
                     f"The energy drifts: max |ΔH| is {r['first10']:.2e} over the first and "
-                    f"{r['last10']:.2e} over the last tenth; ΔH(T) = {r['final_dH']:+.2e} "
+                    f"{r['last10']:.2e} over the last tenth; ΔH({'T' if r['success'] else 'last step'}) = {r['final_dH']:+.2e} "
                     f"({100 * r['final_dH'] / r['H0']:+.3g} % of H0 = {r['H0']:.2f}). "
                     + drift_shape(r) + " ",
                     f"max |ΔH| is {r['first10']:.2e} (first tenth) and {r['last10']:.2e} (last "

@@ -140,10 +140,16 @@ def test_convergence_prints_table(convergence_files):
 
 
 # ------------------------------------------------------------------------------ run
+def _run_method(stages):
+    """The method ``run`` uses: its ``--lam-start`` default, where the option exists."""
+    ns = build_parser().parse_args(["run", "--example", "particle", "--stages", str(stages), "--n-steps", "1"])
+    return L.LobattoIIIAIIIB(stages=stages, lam_start=getattr(ns, "lam_start", "previous"))
+
+
 @pytest.fixture(scope="module")
 def particle_direct():
     ex = get_example("particle")
-    sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=RUN_STAGES), ex.t_span, ex.q0, ex.p0,
+    sol = L.solve(ex.problem, _run_method(RUN_STAGES), ex.t_span, ex.q0, ex.p0,
                   n_steps=RUN_STEPS, args=ex.args, chunk_size=RUN_CHUNK)
     assert sol.success
     return ex, sol

@@ -24,12 +24,14 @@ CLOSED_FORM = [name for name, _ in list_examples() if get_example(name).exact is
 NAMES = [name for name in CLOSED_FORM if name not in COVERED_ELSEWHERE]
 
 #: (example, s, component) where the default study is known to measure a wrong order.
-#: Particle, s = 5, p: the default grid's points above the round-off floor (1e-12·(1+|p|),
-#: i.e. n ≤ 8 steps on [0, 2]) are pre-asymptotic; the maximum error over the grid has local
-#: slopes 10.3, 12.4, 9.8, 4.6 for n = 4..8 and the fit gives 9.78. The asymptotic regime
-#: (local slopes 7.3, 7.4, 7.6, 7.7, 7.9 for n = 10..20, errors 8e-13 .. 4e-15) lies below
-#: the floor, so no choice of n_steps fixes the fit. It is not superconvergence: with y0 = -1
-#: the same problem shows order 8.00 cleanly (test_particle_s5_p_is_order_8_in_asymptotic_regime).
+#: Particle, s = 5, p: the maximum p error over the grid is pre-asymptotic at the coarse steps
+#: of the default grid (local slopes 10.3, 12.4, 9.8, 4.6 for n = 4→5→6→7→8 steps on [0, 2];
+#: the location of the maximum moves between components and times) and then approaches 8
+#: from below only slowly (6.96, 7.26, 7.44, 7.61, 7.66, 7.92 for n = 9→10→...→20), reaching
+#: round-off (~1e-15) before settling: the fit gives 9.78 with the round-off floor at
+#: 1e-12·(1+|p|), 7.10 with 1e-13·(1+|p|). No choice of n_steps fixes this. It is not
+#: superconvergence: with y0 = -1 the same problem shows order 8.00 cleanly
+#: (test_particle_s5_p_is_order_8_in_asymptotic_regime). docs/verification.md reports it too.
 KNOWN_PREASYMPTOTIC = {("particle", 5, "p")}
 
 
@@ -46,7 +48,7 @@ def _cases():
                 if (name, s, comp) in KNOWN_PREASYMPTOTIC:
                     marks = pytest.mark.xfail(
                         strict=True,
-                        reason="default grid pre-asymptotic above the round-off floor: fits 9.78 instead of 8 "
+                        reason="particle s=5 p: pre-asymptotic above the round-off floor, the fit misses 8 "
                         "(see KNOWN_PREASYMPTOTIC)",
                     )
                 yield pytest.param(name, s, comp, marks=marks, id=f"{name}-s{s}-{comp}")

@@ -103,6 +103,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", default=None, help="PNG file: constraint, invariants and Newton iterations")
     p.add_argument("--save", default=None, help="write the solution to F.npz or F.csv")
     p.add_argument("--no-progress", action="store_true", help="never show a progress bar")
+    p.add_argument("--lam-start", choices=["previous", "consistent"], default="previous",
+                   help="Λ_1 of each step: 'previous' (the paper's scheme, symmetric; default) or "
+                        "'consistent' (re-solved from the hidden constraint: λ errors cannot grow, "
+                        "but energy drifts on reversible problems)")
+    p.add_argument("--checkpoint", default=None, help="checkpoint file (.npz): written periodically and on Ctrl-C/SIGTERM")
+    p.add_argument("--checkpoint-every", type=_positive_int, default=100_000, help="steps between checkpoints")
+    p.add_argument("--resume", action="store_true", help="continue from --checkpoint if it exists")
+    p.add_argument("--max-recoveries", type=int, default=0, help="retry failed steps as substeps up to this many times")
 
     sub.add_parser("examples", help="list the example problems")
     return parser
@@ -214,6 +222,11 @@ def _cmd_run(ns) -> int:
 
     plot = _suffix(ns.plot, [".png"], "--plot") if ns.plot else None
     save = _suffix(ns.save, [".npz", ".csv"], "--save") if ns.save else None
+    checkpoint = _suffix(ns.checkpoint, [".npz"], "--checkpoint") if ns.checkpoint else None
+    if ns.resume and checkpoint is None:
+        raise _UsageError("--resume needs --checkpoint FILE")
+    if ns.max_recoveries < 0:
+        raise _UsageError(f"--max-recoveries must be >= 0; got {ns.max_recoveries}")
     ex = get_example(ns.example)
     t0 = ex.t_span[0]
     t1 = ns.t1 if ns.t1 is not None else ex.t_span[1]
@@ -224,9 +237,11 @@ def _cmd_run(ns) -> int:
     signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
     try:
         sol = solve(
-            ex.problem, LobattoIIIAIIIB(stages=ns.stages), (t0, t1), ex.q0, ex.p0,
+            ex.problem, LobattoIIIAIIIB(stages=ns.stages, lam_start=ns.lam_start), (t0, t1), ex.q0, ex.p0,
             n_steps=ns.n_steps, dt=ns.dt, lam0=ex.lam0, args=ex.args, throw=False,
-            chunk_size=4096, progress=progress or False,
+            progress=progress or False, max_recoveries=ns.max_recoveries,
+            checkpoint=checkpoint, checkpoint_every=ns.checkpoint_every if checkpoint else None,
+            resume=ns.resume,
         )
     finally:
         signal.signal(signal.SIGTERM, previous)
@@ -234,6 +249,10 @@ def _cmd_run(ns) -> int:
     print(f"steps: {len(sol.t) - 1} of {sol.stats['n_steps']}, h = {sol.stats['h']:.6g}, "
           f"time {sol.stats['compile_and_run_time']:.2f} s (including compilation)")
     print(f"max ‖φ(q_k, p_k)‖∞ = {np.max(sol.stats['constraint_residual']):.2e}")
+    if sol.stats["recoveries"]:
+        print(f"recovered steps (retried as substeps): {sol.stats['recoveries']}")
+    if checkpoint:
+        print(f"checkpoint: {checkpoint}")
     print(f"Newton iterations per step: mean {np.mean(sol.stats['newton_iterations']) if len(sol.t) > 1 else 0:.2f}")
     for name, fn in ex.invariants.items():
         err = invariant_error(sol, fn)

@@ -11,10 +11,19 @@ import numpy as np
 __all__ = ["invariant_values", "invariant_error", "energy_error", "constraint_residual"]
 
 
+#: Points evaluated per vectorised batch along a trajectory.
+_BATCH = 1024
+
+
+def _over_trajectory(fn, sol) -> np.ndarray:
+    """``fn(t_k, q_k, p_k)`` for every k, in vmapped batches (bounded memory for long runs)."""
+    run = jax.jit(lambda t, q, p: jax.lax.map(lambda x: fn(*x), (t, q, p), batch_size=_BATCH))
+    return np.asarray(run(jnp.asarray(sol.t), jnp.asarray(sol.q), jnp.asarray(sol.p)))
+
+
 def invariant_values(sol, invariant: Callable[..., Any]) -> np.ndarray:
     """``I(t_k, q_k, p_k, args)`` along the solution, shape (N+1,). Vectorised with ``vmap``."""
-    fn = jax.jit(jax.vmap(lambda t, q, p: invariant(t, q, p, sol.args)))
-    return np.asarray(fn(jnp.asarray(sol.t), jnp.asarray(sol.q), jnp.asarray(sol.p)))
+    return _over_trajectory(lambda t, q, p: invariant(t, q, p, sol.args), sol)
 
 
 def invariant_error(sol, invariant: Callable[..., Any]) -> np.ndarray:
@@ -37,5 +46,4 @@ def energy_error(sol) -> np.ndarray:
 def constraint_residual(sol) -> np.ndarray:
     """``‖φ(t_k, q_k, p_k)‖∞`` recomputed along the solution, shape (N+1,)."""
     problem = sol.problem
-    fn = jax.jit(jax.vmap(lambda t, q, p: jnp.max(jnp.abs(problem.phi(t, q, p, sol.args)))))
-    return np.asarray(fn(jnp.asarray(sol.t), jnp.asarray(sol.q), jnp.asarray(sol.p)))
+    return _over_trajectory(lambda t, q, p: jnp.max(jnp.abs(problem.phi(t, q, p, sol.args))), sol)

@@ -91,15 +91,20 @@ class LobattoIIIAIIIB:
         steps, refreshing them only when the contraction rate degrades. Much cheaper per
         step; the converged solution is the same to Newton tolerance.
     lam_start : {"previous", "consistent"}
-        What ``Λ_1`` is at step n > 0. ``"previous"`` (default) is the paper's scheme:
-        ``Λ_1 = λ_n``, the ``Λ_s`` of the previous step; the proven orders above refer to it.
-        Its λ errors are propagated with ``|R(∞)| = 1`` (never damped), and on long runs they
-        can grow like ``exp(C t)`` and spoil q and p too (``solve`` warns when
-        ``|λ_n − λ(q_n, p_n)|`` grows). ``"consistent"`` sets ``Λ_1 = λ(t_n, q_n, p_n)``
-        solved from the hidden constraint ``φ_t + φ_q f + φ_p g = 0`` at the current step
-        point, so λ errors cannot accumulate: on the first step both coincide; observed
-        orders are q, p ``2s-2`` and λ ``s`` for every s, and Newton needs fewer iterations.
-        Recommended for long runs.
+        What ``Λ_1`` is at step n > 0; a trade-off, measured in ``docs/verification.md``.
+
+        * ``"previous"`` (default) is the paper's scheme: ``Λ_1 = λ_n``, the ``Λ_s`` of the
+          previous step; the proven orders above refer to it. The step map on (q, p, λ) is
+          symmetric, so energy errors stay bounded on reversible problems. But λ errors are
+          propagated with ``|R(∞)| = 1`` (never damped) and on some problems (the Chaplygin
+          sleigh, the rolling disk) they grow like ``exp(C t)`` over long runs and then spoil
+          q and p too; ``solve`` warns when ``|λ_n − λ(q_n, p_n)|`` grows.
+        * ``"consistent"`` sets ``Λ_1 = λ(t_n, q_n, p_n)`` solved from the hidden constraint
+          ``φ_t + φ_q f + φ_p g = 0``, so λ errors cannot accumulate (on the first step both
+          coincide). Observed orders: q, p ``2s-2``, λ ``s`` for every s, and Newton needs
+          fewer iterations. The step is no longer symmetric: on reversible problems the
+          energy error drifts (linearly, at the order of the method) instead of staying
+          bounded.
     extrapolate : bool
         Start Newton from the previous step's stage polynomial extrapolated to the new step
         (falls back to an explicit Euler-type guess on the first step, and for large s where
