@@ -1,5 +1,8 @@
 """lobattodae: high-order Lobatto IIIA-IIIB integrators for partitioned index-2 DAEs.
 
+Public namespaces: this module, :mod:`lobattodae.examples` (test problems) and
+:mod:`lobattodae.conditions` (simplifying assumptions and hypotheses of RK pairs).
+
 Importing lobattodae switches JAX to float64 (``jax_enable_x64``): the methods are
 designed for, and tested in, double precision.
 """
@@ -8,6 +11,9 @@ import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
+from ._conditions import TableauReport, check_tableau  # noqa: E402
+from ._convergence import ConvergenceStudy, convergence_study, observed_order  # noqa: E402
+from ._diagnostics import constraint_residual, energy_error, invariant_error, invariant_values  # noqa: E402
 from ._errors import (  # noqa: E402
     InconsistentInitialValuesError,
     LobattoDAEInputError,
@@ -17,6 +23,7 @@ from ._errors import (  # noqa: E402
     SolverError,
 )
 from ._initial import validate_initial_values  # noqa: E402
+from ._plotting import plot_convergence, plot_diagnostics, plot_solution  # noqa: E402
 from ._problem import (  # noqa: E402
     MechanicalSystem,
     NonholonomicSystem,
@@ -27,11 +34,23 @@ from ._problem import (  # noqa: E402
 from ._results import Result  # noqa: E402
 from ._solve import Solution, integrate, solve  # noqa: E402
 from ._stepper import LobattoIIIAIIIB, StepInfo, StepperState  # noqa: E402
-from ._tableau import LobattoPair, lobatto_pair  # noqa: E402
+from ._tableau import LobattoPair, lobatto_iiia, lobatto_iiib, lobatto_nodes, lobatto_pair, lobatto_weights  # noqa: E402
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "ConvergenceStudy",
+    "TableauReport",
+    "check_tableau",
+    "constraint_residual",
+    "convergence_study",
+    "energy_error",
+    "invariant_error",
+    "invariant_values",
+    "observed_order",
+    "plot_convergence",
+    "plot_diagnostics",
+    "plot_solution",
     "InconsistentInitialValuesError",
     "LobattoDAEInputError",
     "LobattoIIIAIIIB",
@@ -50,7 +69,11 @@ __all__ = [
     "consistent_lambda",
     "hidden_constraint",
     "integrate",
+    "lobatto_iiia",
+    "lobatto_iiib",
+    "lobatto_nodes",
     "lobatto_pair",
+    "lobatto_weights",
     "solve",
     "validate_initial_values",
 ]
