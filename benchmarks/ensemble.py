@@ -1,0 +1,103 @@
+"""Ensemble throughput: ``jax.vmap`` over ``lobattodae.integrate`` on CPU and (if present) GPU.
+
+Runs B trajectories of N steps of the falling rolling disk (general motion, n=5, m=2) and of
+the knife edge (n=3, m=1) from perturbed consistent initial data, and reports compile time,
+run time (best of 3, after compilation) and throughput in trajectory-steps per second.
+Prints a table and writes ``benchmarks/results/ensemble_<platform>.json``.
+
+    PYTHONPATH=src python benchmarks/ensemble.py [--quick] [--batches 1 64 1024]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import lobattodae as L
+from lobattodae.examples import get_example
+
+
+def _consistent_batch(ex, batch: int, seed: int = 0):
+    """B consistent initial values: random momenta projected onto the constraint, λ0 solved."""
+    rng = np.random.default_rng(seed)
+    q0 = np.tile(ex.q0, (batch, 1))
+    p0 = ex.p0 + 0.05 * rng.standard_normal((batch, ex.p0.size))
+
+    def project(q, p):
+        phi = lambda pp: ex.problem.phi(0.0, q, pp, ex.args)  # noqa: E731
+        jp = jax.jacfwd(phi)(p)
+        return p - jp.T @ jnp.linalg.solve(jp @ jp.T, phi(p))
+
+    p0 = jax.vmap(project)(jnp.asarray(q0), jnp.asarray(p0))
+    lam0 = jax.vmap(lambda q, p: L.consistent_lambda(ex.problem, 0.0, q, p, jnp.zeros(ex.m), ex.args))(
+        jnp.asarray(q0), p0
+    )
+    return jnp.asarray(q0), p0, lam0
+
+
+def run(example: str, stages: int, batch: int, n_steps: int, h: float) -> dict:
+    ex = get_example(example)
+    method = L.LobattoIIIAIIIB(stages=stages)
+    q0, p0, lam0 = _consistent_batch(ex, batch)
+
+    @jax.jit
+    def ensemble(q0, p0, lam0):
+        q, p, lam, status = jax.vmap(
+            lambda a, b, c: L.integrate(ex.problem, method, 0.0, h, n_steps, a, b, c, ex.args)
+        )(q0, p0, lam0)
+        return q[:, -1], status
+
+    t = time.perf_counter()
+    qT, status = jax.block_until_ready(ensemble(q0, p0, lam0))
+    first = time.perf_counter() - t
+    times = []
+    for _ in range(3):
+        t = time.perf_counter()
+        jax.block_until_ready(ensemble(q0, p0, lam0))
+        times.append(time.perf_counter() - t)
+    best = min(times)
+    ok = int(np.sum(np.asarray(status) == 0))
+    return {
+        "example": example, "stages": stages, "batch": batch, "n_steps": n_steps, "h": h,
+        "compile_and_first_run_s": first, "run_s": best,
+        "traj_steps_per_s": batch * n_steps / best, "us_per_traj_step": best / (batch * n_steps) * 1e6,
+        "successful": ok,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--batches", type=int, nargs="+", default=None)
+    ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
+    ns = ap.parse_args()
+    backend = jax.default_backend()
+    batches = ns.batches or ([1, 64] if ns.quick else [1, 64, 1024, 8192])
+    n_steps = 200 if ns.quick else 1000
+    rows = []
+    print(f"backend: {backend}  devices: {jax.devices()}")
+    print(f"{'example':22s} {'s':>2} {'batch':>6} {'steps':>6} {'compile+1st':>11} {'run':>9} {'traj-steps/s':>13} {'us/traj-step':>12} ok")
+    for example, h in (("knife-edge", 0.01), ("falling-disk-general", 0.01)):
+        for b in batches:
+            r = run(example, 3, b, n_steps, h)
+            rows.append(r)
+            print(f"{example:22s} {3:>2} {b:>6} {n_steps:>6} {r['compile_and_first_run_s']:10.2f}s {r['run_s']:8.3f}s "
+                  f"{r['traj_steps_per_s']:13.3e} {r['us_per_traj_step']:12.3f} {r['successful']}/{b}")
+    os.makedirs(ns.out, exist_ok=True)
+    path = os.path.join(ns.out, f"ensemble_{backend}{'_quick' if ns.quick else ''}.json")
+    meta = {"date": time.strftime("%Y-%m-%d"), "backend": backend, "devices": [str(d) for d in jax.devices()],
+            "machine": platform.platform(), "cpu_count": os.cpu_count(), "jax": jax.__version__}
+    with open(path, "w") as fh:
+        json.dump({"meta": meta, "rows": rows}, fh, indent=2)
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
