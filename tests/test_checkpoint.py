@@ -115,3 +115,15 @@ def test_recovery_budget_is_respected():
     with pytest.raises(L.LobattoDAEInputError, match="max_recoveries"):
         L.solve(prob, L.LobattoIIIAIIIB(stages=3), (0, 6), np.zeros(3), np.array([1.0, 1.0, 0.0]), n_steps=20,
                 args=100.0, max_recoveries=-1)
+
+
+def test_checkpoint_of_a_failed_run_resumes_to_the_same_failure(tmp_path):
+    prob = _stiff_particle()
+    path = tmp_path / "fail.npz"
+    kw = dict(n_steps=20, args=100.0, throw=False, checkpoint=path)
+    first = L.solve(prob, L.LobattoIIIAIIIB(stages=2), (0, 6), np.zeros(3), np.array([1.0, 1.0, 0.0]), **kw)
+    assert not first.success and path.exists()
+    again = L.solve(prob, L.LobattoIIIAIIIB(stages=2), (0, 6), np.zeros(3), np.array([1.0, 1.0, 0.0]), resume=True,
+                    **kw)
+    assert again.status == first.status and again.stats["failed_step"] == first.stats["failed_step"]
+    np.testing.assert_array_equal(again.q, first.q)

@@ -313,7 +313,7 @@ def solve(
             n_good = int(bad[0]) if bad.size else int(np.count_nonzero(out.result == Result.SUCCESSFUL))
             accepted.append(_rows(out, 0, n_good))
             done += n_good
-            carry = new_carry
+            carry = new_carry._replace(failed=jnp.asarray(False))
             if bad.size:
                 row = _rows(out, n_good, n_good + 1)
                 rec = None
@@ -326,6 +326,8 @@ def solve(
                 accepted.append(rec_row)
                 done += 1
                 recoveries += 1
+            elif n_good == 0:  # pragma: no cover - cannot happen: a chunk either advances or fails
+                raise RuntimeError("internal error: a chunk made no progress")
             if report is not None:
                 report(done, n)
             if checkpoint is not None and checkpoint_every is not None and done - last_saved >= checkpoint_every:
