@@ -1,7 +1,7 @@
 """Step cost of lobattodae (issue #4): time per step vs s and vs system size, Newton
 iterations per step, compile time and the first call in a fresh process.
 
-Three parts:
+Four parts:
 
 1. ``stages``: the falling rolling disk (n = 5, m = 2; general nutating motion and steady
    rolling), s = 2..6, h = 0.05. The steady-state time per step is the slope
@@ -14,7 +14,10 @@ Three parts:
    z_i' = y_i x_i'), each in a harmonic well and coupled to its neighbours by springs,
    ``n = 3 N_p`` up to 99, ``m = N_p``, s = 3, defined here with
    ``lobattodae.NonholonomicSystem``.
-3. ``first_call``: a fresh Python process imports lobattodae and times its first
+3. ``padding``: ``solve`` runs whole compiled chunks (4096 steps by default), so N just
+   above a multiple of the chunk length costs as much as the next multiple (knife edge,
+   s = 3, N = 4096, 4097, 5000, 8192, 8193, 12288).
+4. ``first_call``: a fresh Python process imports lobattodae and times its first
    ``solve`` (compile + run; the "first call ≤ 2 s" target), the import, and a second
    call, for the knife edge, the sleigh and the falling disk with s = 3.
 
@@ -176,6 +179,22 @@ def part_stages(quick: bool):
     return out
 
 
+def part_padding(quick: bool):
+    """solve() runs whole compiled chunks: the cost of N steps just above a multiple of
+    the chunk length (4096 by default), against N at the multiple."""
+    ex = get_example("knife-edge", t_end=1000.0)
+    method = L.LobattoIIIAIIIB(stages=3)
+    Ns = [2048, 2049, 4096] if quick else [4096, 4097, 5000, 8192, 8193, 12288]
+    out = {}
+    _solve(ex.problem, method, ex.q0, ex.p0, ex.lam0, ex.args, Ns[0], None)
+    for N in Ns:
+        _solve(ex.problem, method, ex.q0, ex.p0, ex.lam0, ex.args, N, None)  # compile if needed
+        t, sol = _best(lambda: _solve(ex.problem, method, ex.q0, ex.p0, ex.lam0, ex.args, N, None), 3)
+        out[f"N={N}"] = {"N": N, "wall": t, "us_per_requested_step": 1e6 * t / N}
+        _log(f"  knife edge s=3, h = 0.05, N = {N:6d}: {t:.3f} s ({1e6 * t / N:.1f} µs per requested step)")
+    return out
+
+
 def part_size(quick: bool):
     sizes = [1, 4] if quick else [1, 2, 4, 8, 16, 33]
     out = {}
@@ -277,7 +296,7 @@ def plot(res, path):
 def main(argv=None):
     ap = argparse.ArgumentParser(description="lobattodae step cost (issue #4)")
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--parts", nargs="*", default=["stages", "size", "first_call"])
+    ap.add_argument("--parts", nargs="*", default=["stages", "padding", "size", "first_call"])
     ap.add_argument("--watchdog", type=float, default=1800.0,
                     help="abort with a traceback after this many seconds (0: off)")
     a = ap.parse_args(argv)
@@ -295,6 +314,9 @@ def main(argv=None):
     if "stages" in a.parts:
         _log("== time per step vs s (falling rolling disk, h = 0.05) ==")
         res["stages"] = part_stages(a.quick)
+    if "padding" in a.parts:
+        _log("== chunk padding: cost of N just above a multiple of the chunk length ==")
+        res["padding"] = part_padding(a.quick)
     if "size" in a.parts:
         _log("== time per step vs n (particle chain, s = 3, h = 0.05) ==")
         res["size"] = part_size(a.quick)

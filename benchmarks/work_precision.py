@@ -86,16 +86,18 @@ def config(quick: bool) -> dict:
         "T": 1000.0,
         "problems": ["sleigh", "knife-edge", "falling-disk"],
         "chunk": None,  # lobattodae's default: next power of two >= N, at most 4096
-        "lobatto": {2: [5000, 20000, 80000], 3: [2000, 5000, 10000, 20000, 40000, 80000],
-                    4: [1000, 2000, 5000, 10000, 20000, 40000], 5: [1000, 2000, 5000, 10000, 20000, 40000]},
+        # powers of two: N is a multiple of the compiled chunk (4096) or a single chunk, so
+        # no padded steps are computed (see step_cost.py, "chunk padding")
+        "lobatto": {2: [4096, 16384, 65536], 3: [2048, 4096, 8192, 16384, 32768, 65536],
+                    4: [1024, 2048, 4096, 8192, 16384, 32768], 5: [1024, 2048, 4096, 8192, 16384, 32768]},
         # the paper's scheme (lam_start="previous"), fewer step sizes
-        "lobatto_previous": {2: [20000], 3: [10000, 40000], 4: [10000, 40000], 5: [10000, 40000]},
+        "lobatto_previous": {2: [16384], 3: [8192, 32768], 4: [8192, 32768], 5: [8192, 32768]},
         "dop853": [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12, 1e-13, 3e-14],
         "radau": [1e-4, 1e-6, 1e-8, 1e-10],
         "diffrax": [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12, 1e-13, 3e-14],
         "ida": [1e-4, 1e-6, 1e-8, 1e-10, 1e-11],
         "mp": [10_000, 100_000, 1_000_000],
-        "run_budget": 12.0,  # skip a setting predicted to take longer than this [s]
+        "run_budget": 10.0,  # skip a setting predicted to take longer than this [s]
         "repeats": 3,
     }
 
@@ -105,6 +107,15 @@ def _series(diag, t, q, p, H0, t0, t1):
     tp, vp = binned_max(t, phi, t0, t1)
     th, vh = binned_max(t, dH, t0, t1)
     return float(np.max(phi)), float(np.max(dH)), {"t_phi": tp, "phi": vp, "t_dH": th, "dH": vh}
+
+
+def _predicted(times):
+    """Time of the next (tighter) tolerance, extrapolated from the last two runs."""
+    if not times:
+        return 0.0
+    if len(times) == 1:
+        return times[-1]
+    return times[-1] * max(1.0, times[-1] / max(times[-2], 1e-9))
 
 
 def _log(msg):
@@ -132,6 +143,7 @@ def run_lobatto(ex, cfg, diag, q_exact, H0, records):
             label = f"lobattodae s={s}" + ("" if variant is None else f" ({variant} λ)")
             per_step = None
             compile_run = None
+            warmed: set[int] = set()
             for N in Ns:
                 if per_step is not None and per_step * N > cfg["run_budget"]:
                     _log(f"    {label} N={N}: skipped (predicted {per_step * N:.1f} s > budget)")
@@ -148,13 +160,17 @@ def run_lobatto(ex, cfg, diag, q_exact, H0, records):
                     caught[:] = [str(x.message) for x in w]
                     return sol
 
-                # warm-up: compiles the chunk (first N of each s: reported as compile+run) and
-                # anything solve compiles per trajectory length
+                # warm-up whenever the compiled chunk length changes (the first N of each s is
+                # reported as compile+run); lobattodae's default chunk: next power of two >= N,
+                # at most 4096
+                chunk = cfg["chunk"] or min(4096, max(16, 1 << (N - 1).bit_length()))
                 first = None
-                t0 = time.perf_counter()
-                sol = call()
-                if compile_run is None:
-                    compile_run = first = time.perf_counter() - t0
+                if chunk not in warmed:
+                    t0 = time.perf_counter()
+                    sol = call()
+                    warmed.add(chunk)
+                    if compile_run is None:
+                        compile_run = first = time.perf_counter() - t0
                 wall, reps, sol = time_best(call, cfg["repeats"])
                 per_step = wall / N
                 ok = bool(sol.success)
@@ -184,8 +200,15 @@ def run_lobatto(ex, cfg, diag, q_exact, H0, records):
 def run_scipy(ex, cfg, ode, diag, q_exact, H0, records, method, tols):
     T, n = cfg["T"], ex.q0.size
     y0 = np.r_[ex.q0, ex.p0]
+    times: list[float] = []
     for tol in tols:
+        if _predicted(times) > cfg["run_budget"]:
+            _log(f"    scipy {method} tol={tol:g}: skipped (predicted {_predicted(times):.1f} s > budget)")
+            records.append(RunRecord(f"scipy {method}", f"tol={tol:g}", math.nan, 0, None, math.nan, math.nan,
+                                     math.nan, 0, ok=False, message="skipped: predicted time over budget"))
+            break
         wall, reps, r = time_best(lambda: ode.solve_scipy(method, (0.0, T), y0, tol, tol), cfg["repeats"])
+        times.append(wall)
         ok = bool(r.success)
         err = float(np.max(np.abs(r.y[:n, -1] - q_exact))) if ok else math.nan
         max_phi, max_dH, ser = _series(diag, r.t, r.y[:n].T, r.y[n:].T, H0, 0.0, T)
@@ -195,9 +218,6 @@ def run_scipy(ex, cfg, ode, diag, q_exact, H0, records, method, tols):
         records.append(rec)
         _log(f"    scipy {method} tol={tol:g}: err={err:.2e} wall={wall:.3f}s (x{reps}) steps={len(r.t) - 1} "
              f"nfev={r.nfev} max|phi|={max_phi:.1e} max|dH|={max_dH:.1e}")
-        if wall > cfg["run_budget"]:
-            _log(f"    scipy {method}: stopping (last run {wall:.1f} s > budget)")
-            break
 
 
 def run_diffrax(ex, cfg, ode, diag, q_exact, H0, records):
@@ -234,8 +254,15 @@ def run_ida(ex, cfg, diag, q_exact, H0, records):
     T, n, m = cfg["T"], ex.q0.size, ex.lam0.size
     ida = IDABaseline(ex.problem, ex.args, n, m)
     ida.solve((0.0, 1.0), ex.q0, ex.p0, ex.lam0, 1e-4, 1e-4)  # warm-up (eager JAX ops)
+    times: list[float] = []
     for tol in cfg["ida"]:
+        if _predicted(times) > cfg["run_budget"]:
+            _log(f"    IDA tol={tol:g}: skipped (predicted {_predicted(times):.1f} s > budget)")
+            records.append(RunRecord("SUNDIALS IDA", f"tol={tol:g}", math.nan, 0, None, math.nan, math.nan,
+                                     math.nan, 0, ok=False, message="skipped: predicted time over budget"))
+            break
         wall, reps, r = time_best(lambda: ida.solve((0.0, T), ex.q0, ex.p0, ex.lam0, tol, tol), cfg["repeats"])
+        times.append(wall)
         ok = bool(r.success)
         err = float(np.max(np.abs(r.y[-1, :n] - q_exact))) if ok else math.nan
         max_phi, max_dH, ser = _series(diag, r.t, r.y[:, :n], r.y[:, n:2 * n], H0, 0.0, T)
@@ -245,9 +272,6 @@ def run_ida(ex, cfg, diag, q_exact, H0, records):
         records.append(rec)
         _log(f"    IDA tol={tol:g}: err={err:.2e} wall={wall:.3f}s (x{reps}) steps={r.n_steps} nfev={r.nfev} "
              f"max|phi|={max_phi:.1e} max|dH|={max_dH:.1e}" + ("" if ok else f" FAILED {r.message}"))
-        if wall > cfg["run_budget"]:
-            _log(f"    IDA: stopping (last run {wall:.1f} s > budget)")
-            break
 
 
 def run_mp(ex, cfg, diag, q_exact, H0, records):
@@ -256,7 +280,7 @@ def run_mp(ex, cfg, diag, q_exact, H0, records):
     first = None
     per_step = None
     for N in cfg["mp"]:
-        if per_step is not None and per_step * N > 2 * cfg["run_budget"]:
+        if per_step is not None and per_step * N > cfg["run_budget"]:
             _log(f"    McLachlan-Perlmutter N={N}: skipped (predicted {per_step * N:.1f} s)")
             continue
         call = lambda: mp.integrate((0.0, T), ex.q0, ex.p0, ex.lam0, N, n_record=500)  # noqa: E731

@@ -62,10 +62,10 @@ from lobattodae.examples import get_example, list_examples  # noqa: E402
 
 # ----------------------------------------------------------------------------- settings
 #: Fits of q and p use errors above QP_PLATEAU * (1 + max|x|). The library default
-#: (PLATEAU_REL = 1e-12) is kept for lambda, whose round-off level is higher (lambda is
+#: (PLATEAU_REL["lam"]) is kept for lambda, whose round-off level is higher (lambda is
 #: recovered from h * Lambda, so its round-off grows like eps / h). For q and p the
 #: observed round-off level is ~1e-15 (measured below and printed in the report), and
-#: 1e-12 would leave the s = 5, 6 fits only their coarsest, pre-asymptotic step counts.
+#: the library's q/p default would leave the s = 5, 6 fits only their coarsest, pre-asymptotic step counts.
 QP_PLATEAU = 1e-14
 #: Points per fit: the library's default (the n_fit finest step sizes above the floor).
 N_FIT = 4
@@ -228,7 +228,7 @@ def run_study(ex, cfg):
     # Refit q and p above the lower floor (lambda keeps the library floor).
     floors = dict(study.floors)
     for c in ("q", "p"):
-        floors[c] = study.floors[c] * (QP_PLATEAU / PLATEAU_REL)
+        floors[c] = study.floors[c] * (QP_PLATEAU / PLATEAU_REL[c])
     observed = {}
     for s in stages:
         observed[s] = {}
@@ -677,9 +677,9 @@ def write_report(out_dir: Path, cfg, quick, studies, specials, long_runs, timing
         "order s for even s and s−1 for odd s.")
     L.append("")
     L.append(
-        f"Floors: for λ the library default {PLATEAU_REL:g}·(1 + max|λ|); for q and p "
+        f"Floors: for λ the library default {PLATEAU_REL['lam']:g}·(1 + max|λ|); for q and p "
         f"{QP_PLATEAU:g}·(1 + max|x|), lower than the library default, because with "
-        f"{PLATEAU_REL:g} the fits for s ≥ 5 would be left with only their coarsest "
+        f"{PLATEAU_REL['q']:g} the fits for s ≥ 5 would be left with only their coarsest "
         "(pre-asymptotic) step sizes or none at all. λ keeps the higher floor: it is recovered "
         "from h·Λ, and its round-off level grows as h shrinks.")
     L.append("")
@@ -1046,7 +1046,7 @@ def special_cases(cfg, studies):
         sl = local_slopes(h, e)
         n = st.n_steps[5]
         above = e > st.floors["p"]
-        default_floor = st.floors["p"] * PLATEAU_REL / QP_PLATEAU
+        default_floor = st.floors["p"] * PLATEAU_REL["p"] / QP_PLATEAU
         o_default = observed_order(h, e, default_floor)
         idx_def = fit_indices(h, e, default_floor)
         rows = [f"{n[i - 1]}→{n[i]}: {sl[i - 1]:.2f}" for i in range(1, len(n)) if above[i]]
@@ -1058,7 +1058,7 @@ def special_cases(cfg, studies):
         text.append("### Nonholonomic particle, s = 5: p")
         text.append("")
         text.append(
-            f"With the library's default floor ({PLATEAU_REL:g}) the p fit for s = 5 uses "
+            f"With the library's default floor ({PLATEAU_REL['p']:g}) the p fit for s = 5 uses "
             f"n = {sorted(n[idx_def].tolist())} and gives {fmt_order(o_default)}; with the q/p floor "
             f"of this report it gives {fmt_order(st.observed[5]['p'])} over "
             f"n = {sorted(n[fit_indices(h, e, st.floors['p'])].tolist())}. The local slopes of the "
