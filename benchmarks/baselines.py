@@ -101,7 +101,7 @@ def source_revision() -> str:
         return "unknown"
 
 
-def binned_max(t: np.ndarray, v: np.ndarray, t0: float, t1: float, bins: int = 400):
+def binned_max(t: np.ndarray, v: np.ndarray, t0: float, t1: float, bins: int = 250):
     """Max of ``v`` over ``bins`` equal time bins (for compact plots of ‖φ‖(t), |H-H0|(t))."""
     t = np.asarray(t, float)
     v = np.abs(np.asarray(v, float))
@@ -111,7 +111,7 @@ def binned_max(t: np.ndarray, v: np.ndarray, t0: float, t1: float, bins: int = 4
     np.fmax.at(out, idx, v)
     centers = 0.5 * (edges[1:] + edges[:-1])
     ok = np.isfinite(out)
-    return centers[ok].tolist(), out[ok].tolist()
+    return [float(f"{x:.5g}") for x in centers[ok]], [float(f"{x:.3g}") for x in out[ok]]
 
 
 @dataclass

@@ -67,24 +67,30 @@ def step_cost(path):
           f"load average {meta['loadavg_start'][0]:.1f} → {meta.get('loadavg_end', [math.nan])[0]:.1f}; "
           f"{meta.get('wall_seconds', math.nan):.0f} s.\n")
     if "stages" in d:
-        print("| problem | method | µs/step (slope) | µs/step incl. per-call cost | per-call overhead [ms] | Newton/step (max) | Jacobians/step | first call [s] | compile ≈ [s] |")
+        print("| problem | method | µs/step in loop | µs/step (slope) | per-call overhead [ms] | Newton/step (max) | Jacobians/step | first call [s] | compile ≈ [s] |")
         print("|---|---|---|---|---|---|---|---|---|")
         for name, rows in d["stages"].items():
             for k, r in rows.items():
                 if "first_call" not in r:
-                    print(f"| {name} | {k} | {_f(r['us_per_step'], '.1f')} | | | {_f(r.get('newton_iterations_mean'), '.2f')} | | | |")
+                    print(f"| {name} | {k} | | {_f(r['us_per_step'], '.1f')} | | {_f(r.get('newton_iterations_mean'), '.2f')} | | | |")
                     continue
-                print(f"| {name} | {k} | {_f(r['us_per_step'], '.1f')} | {_f(r['us_per_step_incl_overhead'], '.1f')} | "
+                print(f"| {name} | {k} | {_f(r.get('us_per_step_in_loop'), '.1f')} | {_f(r['us_per_step'], '.1f')} | "
                       f"{_f(r['overhead_per_call_ms'], '.1f')} | {_f(r['newton_iterations_mean'], '.2f')} ({r['newton_iterations_max']}) | "
                       f"{_f(r['jacobians_per_step'], '.3f')} | {_f(r['first_call'], '.2f')} | {_f(r['compile_estimate'], '.2f')} |")
         print()
     if "size" in d:
-        print("| n | m | Newton unknowns | µs/step (slope) | µs/step incl. per-call cost | Newton/step | Jacobians/step | first call [s] | compile ≈ [s] |")
+        print("| n | m | Newton unknowns | µs/step in loop | µs/step (slope) | Newton/step | Jacobians/step | first call [s] | compile ≈ [s] |")
         print("|---|---|---|---|---|---|---|---|---|")
         for k, r in d["size"].items():
-            print(f"| {r['n']} | {r['m']} | {r['newton_unknowns']} | {_f(r['us_per_step'], '.1f')} | "
-                  f"{_f(r['us_per_step_incl_overhead'], '.1f')} | {_f(r['newton_iterations_mean'], '.2f')} | "
+            print(f"| {r['n']} | {r['m']} | {r['newton_unknowns']} | {_f(r.get('us_per_step_in_loop'), '.1f')} | "
+                  f"{_f(r['us_per_step'], '.1f')} | {_f(r['newton_iterations_mean'], '.2f')} | "
                   f"{_f(r['jacobians_per_step'], '.3f')} | {_f(r['first_call'], '.2f')} | {_f(r['compile_estimate'], '.2f')} |")
+        print()
+    if "padding" in d:
+        print("| knife edge, s = 3, h = 0.05: N | wall [s] | µs per requested step |")
+        print("|---|---|---|")
+        for k, r in d["padding"].items():
+            print(f"| {r['N']} | {r['wall']:.3f} | {r['us_per_requested_step']:.1f} |")
         print()
     if "first_call" in d:
         print("| fresh process | import [s] | first solve [s] | of which compiled loop [s] | second solve [s] |")

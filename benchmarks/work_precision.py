@@ -374,13 +374,16 @@ def plot(problem_name, records, T, path_wp, path_diag):
     fig.savefig(path_wp, dpi=110)
     plt.close(fig)
 
-    # representative setting per solver: error closest to 1e-8 (log scale)
+    # representative setting per solver: error closest to 1e-8 (log scale); of lobattodae
+    # only s = 3 and s = 5 (both λ variants), to keep the figure readable
     reps = []
     for f in families:
+        if f.startswith("lobattodae") and not ("s=3" in f or "s=5" in f):
+            continue
         rs = [r for r in records if r.solver == f and r.series and np.isfinite(r.err_q) and r.err_q > 0]
         if rs:
             reps.append(min(rs, key=lambda r: abs(math.log10(r.err_q) + 8)))
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6.2), constrained_layout=True)
     for r in reps:
         lab = f"{r.solver} {r.setting} (err {r.err_q:.1e})"
         axes[0].semilogy(r.series["t_phi"], np.maximum(r.series["phi"], 1e-18), color=colors[r.solver], label=lab, lw=1)
@@ -389,7 +392,8 @@ def plot(problem_name, records, T, path_wp, path_diag):
     axes[1].set_title("|H − H0| at the step points (max per time bin)")
     for ax in axes:
         ax.set_xlabel("t")
-    axes[0].legend(fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=3, fontsize=7)
     fig.suptitle(f"{problem_name}: constraint and energy drift, one setting per solver")
     fig.savefig(path_diag, dpi=110)
     plt.close(fig)
@@ -405,6 +409,17 @@ def sleigh_dynamics_note(ex, T):
                        "error in θ∞ and in the speed, accumulated during the turn."}
 
 
+def replot(quick: bool):
+    suffix = "_quick" if quick else ""
+    with open(os.path.join(RESULTS_DIR, f"work_precision{suffix}.json")) as fh:
+        out = json.load(fh)
+    for name, entry in out["problems"].items():
+        records = [RunRecord(**r) for r in entry["records"]]
+        plot(name, records, entry["T"], os.path.join(RESULTS_DIR, f"wp_{name}{suffix}.png"),
+             os.path.join(RESULTS_DIR, f"diag_{name}{suffix}.png"))
+        _log(f"redrew the plots of {name}")
+
+
 # ------------------------------------------------------------------------------------ main
 def main(argv=None):
     ap = argparse.ArgumentParser(description="work-precision benchmark (issue #4)")
@@ -412,7 +427,11 @@ def main(argv=None):
     ap.add_argument("--problems", nargs="*", help="subset of problems")
     ap.add_argument("--watchdog", type=float, default=1800.0,
                     help="abort with a traceback after this many seconds (0: off)")
+    ap.add_argument("--replot", action="store_true",
+                    help="only redraw the PNGs from the saved JSON (no benchmarking)")
     a = ap.parse_args(argv)
+    if a.replot:
+        return replot(a.quick)
     cfg = config(a.quick)
     if a.problems:
         cfg["problems"] = a.problems
@@ -469,6 +488,9 @@ def main(argv=None):
         wp_png = os.path.join(RESULTS_DIR, f"wp_{name}{suffix}.png")
         dg_png = os.path.join(RESULTS_DIR, f"diag_{name}{suffix}.png")
         reps = plot(name, records, T, wp_png, dg_png)
+        for r in records:  # keep the time series of the plotted runs only (JSON size)
+            if (r.solver, r.setting) not in reps:
+                r.series = {}
         entry = {"T": T, "n": n, "m": m, "q_exact_T": q_exact.tolist(), "H0": H0,
                  "records": [asdict(r) for r in records], "targets": targets(name, records),
                  "representatives": reps, "seconds": time.perf_counter() - t_prob,
@@ -478,7 +500,7 @@ def main(argv=None):
         out["problems"][name] = entry
         _log(f"  ({entry['seconds']:.0f} s for {name})")
         with open(os.path.join(RESULTS_DIR, f"work_precision{suffix}.json"), "w") as fh:  # partial results
-            json.dump(out, fh, indent=1, default=float)
+            json.dump(out, fh, default=float)
 
     # ---- table
     _log("\n" + "=" * 118)
@@ -507,7 +529,7 @@ def main(argv=None):
     meta["wall_seconds"] = time.perf_counter() - start
     path = os.path.join(RESULTS_DIR, f"work_precision{suffix}.json")
     with open(path, "w") as fh:
-        json.dump(out, fh, indent=1, default=float)
+        json.dump(out, fh, default=float)
     _log(f"\nsaved {path} and the PNGs ({meta['wall_seconds']:.0f} s in all)")
 
 
