@@ -34,6 +34,10 @@ def work_precision(path):
           f"{meta.get('wall_seconds', math.nan):.0f} s.\n")
     for name, e in d["problems"].items():
         print(f"#### {name}, T = {e['T']:g} (n = {e['n']}, m = {e['m']})\n")
+        pm = e.get("meta")
+        if pm and pm.get("date") != meta.get("date"):
+            print(f"(measured in the run of {pm['date']}, lobattodae {pm.get('lobattodae_revision')}, load average "
+                  f"{pm['loadavg_start'][0]:.1f} → {pm.get('loadavg_end', [math.nan])[0]:.1f})\n")
         print("| solver | setting | error q(T) | wall [s] | 1st call [s] | max ‖φ‖ | max \\|H−H0\\| | steps | Newton/step | note |")
         print("|---|---|---|---|---|---|---|---|---|---|")
         for r in e["records"]:
@@ -66,6 +70,9 @@ def step_cost(path):
     print(f"Run {meta['date']}, lobattodae {meta.get('lobattodae_revision', meta['lobattodae'])}, h = {meta['h']}; "
           f"load average {meta['loadavg_start'][0]:.1f} → {meta.get('loadavg_end', [math.nan])[0]:.1f}; "
           f"{meta.get('wall_seconds', math.nan):.0f} s.\n")
+    for part, pm in d.get("meta_parts", {}).items():
+        print(f"Part `{part}` re-measured {pm['date']}, lobattodae {pm.get('lobattodae_revision')}, load average "
+              f"{pm['loadavg_start'][0]:.1f} → {pm.get('loadavg_end', [math.nan])[0]:.1f}.\n")
     if "stages" in d:
         print("| problem | method | µs/step in loop | µs/step (slope) | per-call overhead [ms] | Newton/step (max) | Jacobians/step | first call [s] | compile ≈ [s] |")
         print("|---|---|---|---|---|---|---|---|---|")

@@ -111,7 +111,7 @@ def _best(fn, repeats):
 def measure(problem, method, q0, p0, lam0, args, n1, chunk, repeats=3):
     """First call, best-of-``repeats`` for n1 and 2·n1 steps; slope = time per step."""
     t0 = time.perf_counter()
-    sol = _solve(problem, method, q0, p0, lam0, args, n1, chunk)
+    _solve(problem, method, q0, p0, lam0, args, n1, chunk)
     first = time.perf_counter() - t0
     t1, sol1 = _best(lambda: _solve(problem, method, q0, p0, lam0, args, n1, chunk), repeats)
     t2, sol2 = _best(lambda: _solve(problem, method, q0, p0, lam0, args, 2 * n1, chunk), repeats)

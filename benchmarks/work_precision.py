@@ -467,6 +467,15 @@ def main(argv=None):
     out = {"meta": meta, "problems": {}}
     os.makedirs(RESULTS_DIR, exist_ok=True)
     suffix = "_quick" if a.quick else ""
+    json_path = os.path.join(RESULTS_DIR, f"work_precision{suffix}.json")
+    if a.problems and os.path.exists(json_path):
+        # a subset of the problems: keep the other problems' saved results (each problem
+        # entry records the run it came from in "meta")
+        with open(json_path) as fh:
+            saved = json.load(fh)
+        for name, entry in saved.get("problems", {}).items():
+            entry.setdefault("meta", saved.get("meta"))
+            out["problems"][name] = entry
 
     for name in cfg["problems"]:
         _log(f"\n=== {name}, T = {T:g} ===")
@@ -491,7 +500,7 @@ def main(argv=None):
         for r in records:  # keep the time series of the plotted runs only (JSON size)
             if (r.solver, r.setting) not in reps:
                 r.series = {}
-        entry = {"T": T, "n": n, "m": m, "q_exact_T": q_exact.tolist(), "H0": H0,
+        entry = {"meta": meta, "T": T, "n": n, "m": m, "q_exact_T": q_exact.tolist(), "H0": H0,
                  "records": [asdict(r) for r in records], "targets": targets(name, records),
                  "representatives": reps, "seconds": time.perf_counter() - t_prob,
                  "plots": [os.path.basename(wp_png), os.path.basename(dg_png)]}
