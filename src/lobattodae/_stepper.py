@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._problem import consistent_lambda, vector_field
-from ._newton import JacobianCache, NewtonInfo, empty_jacobian_cache, newton_solve
+from ._newton import JacobianCache, empty_jacobian_cache, newton_solve
 from ._tableau import LobattoPair, lobatto_pair
 
 __all__ = ["LobattoIIIAIIIB", "StageSlopes", "StepperState", "StepInfo"]
@@ -224,12 +224,9 @@ class LobattoIIIAIIIB:
         def pack(Q, P, Z):
             return jnp.concatenate([Q[1:].ravel(), P.ravel(), Z[1:].ravel()])
 
-        def slopes(Q, P, Z):
-            return fg(tj, Q, P, Z / h)
-
         def residual(x):
             Q, P, Z = unpack(x)
-            V, W = slopes(Q, P, Z)
+            V, W = fg(tj, Q, P, Z / h)
             r_q = Q[1:] - q0 - h * (a[1:] @ V)
             r_p = P - p0 - h * (a_hat @ W)
             p_tilde = p0 + h * (a[1:] @ W)
@@ -253,10 +250,10 @@ class LobattoIIIAIIIB:
         p1 = p0 + h * (b @ W)
         lam1 = lam[-1]
         info = StepInfo(ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians)
-        slopes = StageSlopes(V, W, lam)
+        new_slopes = StageSlopes(V, W, lam)
         have_correction = jnp.logical_and(state.have_slopes, plain is not None)
-        correction = slopes if plain is None else jax.tree_util.tree_map(jnp.subtract, slopes, plain)
-        new_state = StepperState(cache, slopes, correction, jnp.asarray(True), have_correction)
+        correction = new_slopes if plain is None else jax.tree_util.tree_map(jnp.subtract, new_slopes, plain)
+        new_state = StepperState(cache, new_slopes, correction, jnp.asarray(True), have_correction)
         return q1, p1, lam1, info, new_state
 
     def _initial_guess(self, lam0, h, state, q0, p0, a, a_hat, pack):
