@@ -10,6 +10,7 @@ the length of the interval.
 """
 
 import functools
+import os
 import warnings
 
 import jax
@@ -23,6 +24,8 @@ import lobattodae as L
 from lobattodae.examples import get_example
 
 N_STEPS = 24
+#: the "explore" hypothesis profile (tests/conftest.py) draws fresh cases, 5x as many
+SCALE = 5 if os.environ.get("HYPOTHESIS_PROFILE") == "explore" else 1
 CONSTRAINT_TOL = 1e-12
 
 #: example -> (stages drawn from, max_examples, q perturbation, velocity bound, h range, parameters)
@@ -128,7 +131,7 @@ def _solve(ex, s, h, q0, p0, args, **kw):
     ],
 )
 def test_random_consistent_initial_data(name):
-    max_examples = CASES[name][1]
+    max_examples = CASES[name][1] * SCALE
 
     @settings(max_examples=max_examples, deadline=None, database=None)
     @given(data=st.data())
@@ -170,7 +173,7 @@ def test_projection_of_random_momenta(name):
     p0' = p0 − Jᵀ(JJᵀ)⁻¹φ(q0, p0) with J = D_pφ (φ is linear in p for these problems)."""
     ex = _example(name)
 
-    @settings(max_examples=10, deadline=None, database=None)
+    @settings(max_examples=10 * SCALE, deadline=None, database=None)
     @given(data=st.data())
     def check(data):
         n = ex.n
@@ -191,3 +194,20 @@ def test_projection_of_random_momenta(name):
         _check_solution(sol, h)
 
     check()
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e-13, 1e-10])
+def test_projection_of_nearly_consistent_momenta(offset):
+    """Regression (found by hypothesis): a p0 that violates φ by less than the consistency
+    tolerance is still projected when project_initial=True, to round-off, not left as is."""
+    ex = _example("particle-harmonic")
+    q0 = np.zeros(ex.n)
+    p0 = np.array([0.0, 0.0, offset])
+    sol = _solve(ex, 2, 0.5, q0, p0, ex.args, throw=False, project_initial=True)
+    phi0 = np.asarray(ex.problem.phi(0.0, jnp.asarray(sol.q[0]), jnp.asarray(sol.p[0]), ex.args))
+    assert np.max(np.abs(phi0)) <= 1e-16
+    q0j = jnp.asarray(q0)
+    jac = np.asarray(jax.jacfwd(lambda p: ex.problem.phi(0.0, q0j, p, ex.args))(jnp.asarray(p0)))
+    phi_raw = np.asarray(ex.problem.phi(0.0, q0j, jnp.asarray(p0), ex.args))
+    np.testing.assert_allclose(sol.p[0], p0 - jac.T @ np.linalg.solve(jac @ jac.T, phi_raw), rtol=0, atol=1e-16)
+    _check_solution(sol, 0.5)

@@ -138,13 +138,15 @@ def validate_initial_values(
     scale = 1.0 + float(np.max(np.abs(p0))) + float(np.max(np.abs(q0)))
     phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, qj, pj, lam, args))
     phi_norm = float(np.max(np.abs(phi0)))
-    if not phi_norm <= tol * scale:
-        if not project:
-            raise InconsistentInitialValuesError(
-                f"the initial values violate the constraint: ‖φ(t0, q0, p0)‖∞ = {phi_norm:.3e} "
-                f"> {tol:.1e}·(1 + ‖q0‖∞ + ‖p0‖∞). Fix q0/p0 so that φ = 0, or pass "
-                "project_initial=True to project p0 onto the constraint."
-            )
+    if not project and not phi_norm <= tol * scale:
+        raise InconsistentInitialValuesError(
+            f"the initial values violate the constraint: ‖φ(t0, q0, p0)‖∞ = {phi_norm:.3e} "
+            f"> {tol:.1e}·(1 + ‖q0‖∞ + ‖p0‖∞). Fix q0/p0 so that φ = 0, or pass "
+            "project_initial=True to project p0 onto the constraint."
+        )
+    if project:
+        # Always project when asked, also when p0 is already within the tolerance: the user
+        # then gets φ(t0, q0, p0) = 0 to round-off, not merely ≤ tol.
         p0 = _project_momenta(problem, t0j, q0, p0, args, tol * scale)
         pj = jnp.asarray(p0)
         phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, qj, pj, lam, args))
@@ -193,14 +195,20 @@ def _check_nonsingular(jac: np.ndarray) -> None:
 
 
 def _project_momenta(problem, t0, q0, p0, args, tol):
-    """Least-squares projection of p0 onto {p : φ(t0, q0, p) = 0} (Gauss-Newton)."""
+    """Least-squares projection of p0 onto {p : φ(t0, q0, p) = 0} (Gauss-Newton).
+
+    Iterates until the correction is at round-off level (one step is exact for φ linear in
+    p, the second confirms it), so the result does not depend on how close p0 already was.
+    """
     p = jnp.asarray(p0)
     q = jnp.asarray(q0)
+    eps = float(np.finfo(np.float64).eps)
     for _ in range(20):
         r, jp = _phi_and_jacobian(problem, t0, q, p, args)
-        if float(jnp.max(jnp.abs(r))) <= 1e-3 * tol:
+        dp = jp.T @ jnp.linalg.solve(jp @ jp.T, r)
+        p = p - dp
+        if float(jnp.max(jnp.abs(dp))) <= 4 * eps * (1.0 + float(jnp.max(jnp.abs(p)))):
             break
-        p = p - jp.T @ jnp.linalg.solve(jp @ jp.T, r)
     r, _ = _phi_and_jacobian(problem, t0, q, p, args)
     r = float(jnp.max(jnp.abs(r)))
     if not r <= tol:

@@ -252,7 +252,8 @@ def solve(
         If True (default) a failed step raises :class:`NewtonFailure`; otherwise the
         computed prefix is returned with ``success=False`` and the status.
     project_initial : bool
-        Project ``p0`` onto the constraint instead of rejecting inconsistent values.
+        Replace ``p0`` by its least-squares projection onto the constraint
+        {p : φ(t0, q0, p) = 0} (always, to round-off) instead of rejecting inconsistent values.
     chunk_size : int, optional
         Steps per compiled chunk (default: the next power of two ≥ n_steps, at most 4096).
     progress : bool or callable
