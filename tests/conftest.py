@@ -16,3 +16,7 @@ from hypothesis import settings
 settings.register_profile("ci", derandomize=True, database=None, deadline=None)
 settings.register_profile("explore", derandomize=False, database=None, deadline=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+# The CLI switches on JAX's persistent compilation cache for its process; tests call
+# ``main([...])`` in-process, so keep it off here (tests/test_cli.py checks it in a subprocess).
+os.environ.setdefault("LOBATTODAE_NO_CACHE", "1")

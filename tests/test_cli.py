@@ -5,6 +5,7 @@
 """
 
 import json
+import os
 import subprocess
 import sys
 
@@ -61,6 +62,41 @@ def test_python_dash_m_bad_argument_exit_code():
     )
     assert proc.returncode == 2
     assert "stages must be >= 2" in proc.stderr
+
+
+def _cli_subprocess(argv, env_update):
+    env = {k: v for k, v in os.environ.items() if k != "LOBATTODAE_NO_CACHE"}
+    env.update(env_update)
+    return subprocess.run(
+        [sys.executable, "-m", "lobattodae", *argv], capture_output=True, text=True, timeout=300, env=env
+    )
+
+
+def test_cli_persistent_compilation_cache(tmp_path):
+    """`run` stores its compiled step loop in $LOBATTODAE_CACHE_DIR, a second process reuses
+    it (no new entries, same numbers), and LOBATTODAE_NO_CACHE=1 keeps it off."""
+    cache = tmp_path / "cache"
+    argv = ["run", "--example", "knife-edge", "--stages", "2", "--n-steps", "20", "--no-progress"]
+    first = _cli_subprocess([*argv, "--save", str(tmp_path / "a.npz")], {"LOBATTODAE_CACHE_DIR": str(cache)})
+    assert first.returncode == 0, first.stderr
+    entries = sorted(p.name for p in cache.iterdir())
+    assert entries, "the compiled step loop was not written to the cache"
+    second = _cli_subprocess([*argv, "--save", str(tmp_path / "b.npz")], {"LOBATTODAE_CACHE_DIR": str(cache)})
+    assert second.returncode == 0, second.stderr
+    assert sorted(p.name for p in cache.iterdir()) == entries  # everything came from the cache
+    with np.load(tmp_path / "a.npz") as a, np.load(tmp_path / "b.npz") as b:
+        np.testing.assert_array_equal(a["q"], b["q"])
+    off = tmp_path / "off"
+    third = _cli_subprocess(argv, {"LOBATTODAE_CACHE_DIR": str(off), "LOBATTODAE_NO_CACHE": "1"})
+    assert third.returncode == 0, third.stderr
+    assert not off.exists()
+
+
+def test_enable_compilation_cache_unwritable_directory(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(ValueError, match="cannot create the compilation cache directory"):
+        L.enable_compilation_cache(blocker / "sub")
 
 
 # -------------------------------------------------------------------------- tableau

@@ -11,6 +11,7 @@ import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
+from ._cache import enable_compilation_cache  # noqa: E402
 from ._conditions import TableauReport, check_tableau  # noqa: E402
 from ._convergence import ConvergenceStudy, convergence_study, observed_order  # noqa: E402
 from ._diagnostics import constraint_residual, energy_error, invariant_error, invariant_values  # noqa: E402
@@ -67,6 +68,7 @@ __all__ = [
     "StepInfo",
     "StepperState",
     "consistent_lambda",
+    "enable_compilation_cache",
     "hidden_constraint",
     "integrate",
     "lobatto_iiia",

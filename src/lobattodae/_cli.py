@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import time
@@ -10,6 +11,8 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+
+from ._cache import NO_CACHE_ENV, enable_compilation_cache
 
 __all__ = ["main"]
 
@@ -73,6 +76,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _ArgumentParser(
         prog="lobattodae",
         description="Lobatto IIIA-IIIB integrators for partitioned index-2 DAEs and nonholonomic systems.",
+        epilog="demo, convergence and run keep compiled step loops in a persistent cache "
+        "($LOBATTODAE_CACHE_DIR, default ~/.cache/lobattodae), so a second invocation skips XLA "
+        "compilation; set LOBATTODAE_NO_CACHE=1 to switch it off.",
     )
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_ArgumentParser)
 
@@ -126,6 +132,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help
         return int(exc.code or 0)
     try:
+        if ns.command in _COMPILING_COMMANDS and os.environ.get(NO_CACHE_ENV, "") in ("", "0"):
+            enable_compilation_cache()
         return _COMMANDS[ns.command](ns)
     except _UsageError as exc:
         print(f"lobattodae: error: {exc}", file=sys.stderr)
@@ -306,6 +314,10 @@ def _save_solution(sol, path: Path) -> None:
         data = np.column_stack([sol.t, sol.q, sol.p, sol.lam])
         np.savetxt(path, data, delimiter=",", header=",".join(header), comments="", fmt="%.17g")
 
+
+#: Commands that compile step loops use the persistent compilation cache (see
+#: :func:`lobattodae.enable_compilation_cache`) unless LOBATTODAE_NO_CACHE=1.
+_COMPILING_COMMANDS = frozenset({"demo", "convergence", "run"})
 
 _COMMANDS = {
     "demo": _cmd_demo,

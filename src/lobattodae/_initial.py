@@ -74,6 +74,49 @@ def _shape_of(fn, name: str, expected: tuple[int, ...] | None, *a):
     return out
 
 
+def _check_output_shapes(problem, n: int, t, q, p, args) -> int:
+    """Trace f, g and φ once (nothing is compiled) and check what they return; return m."""
+    phi_s = _shape_of(problem.phi, "phi(t, q, p, args)", None, t, q, p, args)
+    if len(phi_s.shape) != 1 or phi_s.shape[0] < 1:
+        raise ShapeError(f"phi(t, q, p, args) must return a 1-D array of shape (m,), m ≥ 1; got shape {phi_s.shape}.")
+    m = phi_s.shape[0]
+    if m > n:
+        raise ShapeError(f"there are more constraints (m={m}) than degrees of freedom (n={n}).")
+    _shape_of(problem.f, "f(t, q, p, args)", (n,), t, q, p, args)
+    lam = jax.ShapeDtypeStruct((m,), jnp.float64)
+    _shape_of(problem.g, "g(t, q, p, lam, args)", (n,), t, q, p, lam, args)
+    return m
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_output_shapes(problem, n: int, args_treedef, args_avals) -> int:
+    args = jax.tree_util.tree_unflatten(
+        args_treedef, [jax.ShapeDtypeStruct(shape, dtype, weak_type=weak) for shape, dtype, weak in args_avals]
+    )
+    vec = jax.ShapeDtypeStruct((n,), jnp.float64)
+    return _check_output_shapes(problem, n, jax.ShapeDtypeStruct((), jnp.float64), vec, vec, args)
+
+
+def _output_signature(problem, n: int, args) -> int:
+    """``m``, after checking the shapes and dtypes f, g and φ return for these input shapes.
+
+    Tracing the user's functions costs ~10 ms, so the result is cached per (problem, n,
+    abstract args); a second ``solve`` of the same problem does not trace them again.
+    Problems or args that cannot be cached (unhashable, non-array leaves) are traced each time.
+    """
+    leaves, treedef = jax.tree_util.tree_flatten(args)
+    try:
+        avals = tuple(
+            (np.shape(x), jnp.result_type(x), not isinstance(x, (np.ndarray, jax.Array, np.generic)))
+            for x in leaves
+        )
+        hash((problem, treedef, avals))
+    except TypeError:
+        vec = jnp.zeros(n)
+        return _check_output_shapes(problem, n, jnp.asarray(0.0), vec, vec, args)
+    return _cached_output_shapes(problem, n, treedef, avals)
+
+
 @functools.partial(jax.jit, static_argnums=0)
 def _initial_quantities(problem, t, q, p, lam, args):
     """φ, the hidden-constraint residual, D_pφ·D_λg and one Newton update of λ (one compile)."""
@@ -108,6 +151,12 @@ def validate_initial_values(
     ------
     ShapeError, InconsistentInitialValuesError, SingularConstraintError
     """
+    q0, p0, lam0, _ = validate_and_residual(problem, t0, q0, p0, lam0, args, project=project, tol=tol)
+    return q0, p0, lam0
+
+
+def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=False, tol=CONSISTENCY_TOL):
+    """:func:`validate_initial_values`, also returning ‖φ(t0, q0, p0)‖∞ of the values returned."""
     for attr in ("f", "g", "phi"):
         if not callable(getattr(problem, attr, None)):
             raise TypeError(
@@ -121,19 +170,12 @@ def validate_initial_values(
         raise ShapeError(f"q0 and p0 must have the same shape (n,); got {q0.shape} and {p0.shape}.")
     t0j = jnp.asarray(t0, jnp.float64)
     qj, pj = jnp.asarray(q0), jnp.asarray(p0)
-    phi_s = _shape_of(problem.phi, "phi(t, q, p, args)", None, t0j, qj, pj, args)
-    if len(phi_s.shape) != 1 or phi_s.shape[0] < 1:
-        raise ShapeError(f"phi(t, q, p, args) must return a 1-D array of shape (m,), m ≥ 1; got shape {phi_s.shape}.")
-    m = phi_s.shape[0]
-    if m > n:
-        raise ShapeError(f"there are more constraints (m={m}) than degrees of freedom (n={n}).")
-    _shape_of(problem.f, "f(t, q, p, args)", (n,), t0j, qj, pj, args)
+    m = _output_signature(problem, n, args)
     if lam0 is not None:
         lam0 = as_vector(lam0, "lam0")
         if lam0.shape != (m,):
             raise ShapeError(f"lam0 must have shape (m,) = ({m},) to match phi; got {lam0.shape}.")
     lam = jnp.zeros(m) if lam0 is None else jnp.asarray(lam0)
-    _shape_of(problem.g, "g(t, q, p, lam, args)", (n,), t0j, qj, pj, lam, args)
 
     scale = 1.0 + float(np.max(np.abs(p0))) + float(np.max(np.abs(q0)))
     phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, qj, pj, lam, args))
@@ -174,7 +216,7 @@ def validate_initial_values(
                 f"The consistent value is lam0 = {np.asarray(lam0) - dl} "
                 "(omit lam0 to have it computed)."
             )
-    return q0, np.asarray(p0, np.float64), np.asarray(lam0, np.float64)
+    return q0, np.asarray(p0, np.float64), np.asarray(lam0, np.float64), float(np.max(np.abs(phi0)))
 
 
 def _check_nonsingular(jac: np.ndarray) -> None:

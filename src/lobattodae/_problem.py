@@ -179,6 +179,17 @@ def constraint_lambda_jacobian(problem, t, q, p, lam, args=None):
     return jax.jacfwd(lambda ll: hidden_constraint(problem, t, q, p, ll, args))(lam)
 
 
+def _hidden_constraint_and_jacobian(problem, t, q, p, lam, args):
+    """The hidden-constraint residual and its λ-Jacobian ``D_pφ·D_λg`` in one forward pass."""
+
+    def both(ll):
+        r = hidden_constraint(problem, t, q, p, ll, args)
+        return r, r
+
+    jac, r = jax.jacfwd(both, has_aux=True)(lam)
+    return r, jac
+
+
 def consistent_lambda(problem, t, q, p, lam_guess, args=None, iterations=3):
     r"""Solve the hidden constraint for λ by Newton's method (pure, jit/vmap-able).
 
@@ -186,9 +197,10 @@ def consistent_lambda(problem, t, q, p, lam_guess, args=None, iterations=3):
     ``iterations`` Newton steps are taken for general problems.
     """
 
-    def body(_, lam):
-        r = hidden_constraint(problem, t, q, p, lam, args)
-        jac = constraint_lambda_jacobian(problem, t, q, p, lam, args)
+    def update(lam):
+        r, jac = _hidden_constraint_and_jacobian(problem, t, q, p, lam, args)
         return lam - jnp.linalg.solve(jac, r)
 
-    return jax.lax.fori_loop(0, iterations, body, lam_guess)
+    if iterations == 1:  # the common case inside the step loop: no loop construct
+        return update(lam_guess)
+    return jax.lax.fori_loop(0, iterations, lambda _, lam: update(lam), lam_guess)

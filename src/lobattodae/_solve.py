@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import LobattoDAEInputError, NewtonFailure
-from ._initial import check_float64, validate_initial_values
+from ._initial import check_float64, validate_and_residual
 from ._problem import consistent_lambda
 from ._results import Result
 from ._stepper import LobattoIIIAIIIB, StepperState
@@ -39,7 +39,7 @@ DRIFT_FLOOR = 1e-6
 class _Carry(NamedTuple):
     q: jax.Array
     p: jax.Array
-    lam: jax.Array
+    lam: jax.Array  # Λ_1 of the next step: λ_k, or λ(t_k, q_k, p_k) for lam_start="consistent"
     state: StepperState
     failed: jax.Array
 
@@ -68,18 +68,20 @@ def _scan_steps(problem, method: LobattoIIIAIIIB, length: int, k0, n_total, t0, 
         k = (k0 + j).astype(t0.dtype)
         active = jnp.logical_and(k0 + j < n_total, ~c.failed)
         t = t0 + k * h
-        q1, p1, lam1, info, st = method.step(problem, t, c.q, c.p, c.lam, h, args, c.state)
+        q1, p1, lam1, info, st = method.step_from(problem, t, c.q, c.p, c.lam, h, args, c.state)
         cons = jnp.max(jnp.abs(problem.phi(t + h, q1, p1, args)))
         # distance of λ_{k+1} from the hidden constraint at (q_{k+1}, p_{k+1}): an estimate
-        # of the error in λ, and the symptom of the undamped λ mode of the paper's scheme
+        # of the error in λ, and the symptom of the undamped λ mode of the paper's scheme.
+        # With lam_start="consistent", λ(q_{k+1}, p_{k+1}) is the next step's Λ_1.
         lam_c = consistent_lambda(problem, t + h, q1, p1, lam1, args, iterations=1)
         drift = jnp.max(jnp.abs(lam1 - lam_c))
+        lam_next = lam_c if method.lam_start == "consistent" else lam1
         ok = info.result == Result.SUCCESSFUL
         accept = jnp.logical_and(active, ok)
         new = _Carry(
             jnp.where(accept, q1, c.q),
             jnp.where(accept, p1, c.p),
-            jnp.where(accept, lam1, c.lam),
+            jnp.where(accept, lam_next, c.lam),
             jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), st, c.state),
             jnp.logical_or(c.failed, jnp.logical_and(active, ~ok)),
         )
@@ -87,6 +89,11 @@ def _scan_steps(problem, method: LobattoIIIAIIIB, length: int, k0, n_total, t0, 
         out = _StepOut(q1, p1, lam1, code, info.iterations, info.residual_norm, info.n_jacobians, cons, drift)
         return new, out
 
+    if method.lam_start == "consistent":
+        # Λ_1 of the first step from the hidden constraint, as LobattoIIIAIIIB.step does (a
+        # given λ0 is only checked to a tolerance); later steps get it from the loop body.
+        lam_c = consistent_lambda(problem, t0, carry.q, carry.p, carry.lam, args, iterations=1)
+        carry = carry._replace(lam=jnp.where(k0 == 0, lam_c, carry.lam))
     return jax.lax.scan(body, carry, jnp.arange(length))
 
 
@@ -284,7 +291,7 @@ def solve(
         )
     t0, t1 = _check_t_span(t_span)
     n, h = _step_count(t0, t1, n_steps, dt)
-    q0, p0, lam0 = validate_initial_values(problem, t0, q0, p0, lam0, args, project=project_initial)
+    q0, p0, lam0, phi0 = validate_and_residual(problem, t0, q0, p0, lam0, args, project=project_initial)
     length = _chunk_length(n, chunk_size)
     report = _progress_reporter(progress)
 
@@ -340,7 +347,8 @@ def solve(
         _save_checkpoint(checkpoint, meta, done, recoveries, accepted, carry)
     elapsed = time.perf_counter() - start
     return _assemble(
-        problem, method, args, t0, t1, h, n, q0, p0, lam0, accepted, failure, interrupted, throw, elapsed, recoveries
+        problem, method, args, t0, t1, h, n, q0, p0, lam0, phi0, accepted, failure, interrupted, throw, elapsed,
+        recoveries,
     )
 
 
@@ -428,7 +436,8 @@ def _concat(accepted: list[_StepOut], carry: _Carry) -> _StepOut:
 
 
 def _assemble(
-    problem, method, args, t0, t1, h, n, q0, p0, lam0, accepted, failure, interrupted, throw, elapsed, recoveries
+    problem, method, args, t0, t1, h, n, q0, p0, lam0, phi0, accepted, failure, interrupted, throw, elapsed,
+    recoveries,
 ) -> Solution:
     n_ok = sum(len(a.result) for a in accepted)
     out = _concat(accepted, _Carry(jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0), None, None))
@@ -450,7 +459,6 @@ def _assemble(
     q = np.vstack([q0[None], out.q])
     p = np.vstack([p0[None], out.p])
     lam = np.vstack([lam0[None], out.lam])
-    phi0 = float(np.max(np.abs(np.asarray(problem.phi(jnp.asarray(t0), jnp.asarray(q0), jnp.asarray(p0), args)))))
     drift = np.concatenate([[0.0], out.drift])
     n_jac = int(np.sum(out.n_jacobians)) + (int(failure[2].n_jacobians[0]) if failure is not None else 0)
     stats = {

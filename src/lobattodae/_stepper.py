@@ -191,19 +191,33 @@ class LobattoIIIAIIIB:
         state : StepperState
             To be passed to the next step (Jacobian reuse, initial guess).
         """
+        q0 = jnp.asarray(q0)
+        dtype = q0.dtype
+        p0 = jnp.asarray(p0, dtype)
+        lam0 = jnp.asarray(lam0, dtype)
+        t0 = jnp.asarray(t0, dtype)
+        if self.lam_start == "consistent":
+            lam0 = consistent_lambda(problem, t0, q0, p0, lam0, args, iterations=1)
+        return self.step_from(problem, t0, q0, p0, lam0, h, args, state)
+
+    def step_from(self, problem, t0, q0, p0, lam_start, h, args: Any = None, state: StepperState | None = None):
+        """:meth:`step` with ``Λ_1 = lam_start`` given as is (``lam_start`` is not applied).
+
+        For loops that already know ``λ(t_n, q_n, p_n)``: :func:`~lobattodae.solve` computes
+        it after every step for its multiplier-drift diagnostic and, with
+        ``lam_start="consistent"``, hands it to the next step instead of solving for it twice.
+        """
         pair = self.pair
         s = self.stages
         q0 = jnp.asarray(q0)
         dtype = q0.dtype
         p0 = jnp.asarray(p0, dtype)
-        lam0 = jnp.asarray(lam0, dtype)
+        lam0 = jnp.asarray(lam_start, dtype)
         h = jnp.asarray(h, dtype)
         t0 = jnp.asarray(t0, dtype)
         n, m = q0.shape[0], lam0.shape[0]
         if state is None:
             state = self.init(q0, p0, lam0)
-        if self.lam_start == "consistent":
-            lam0 = consistent_lambda(problem, t0, q0, p0, lam0, args, iterations=1)
 
         a = jnp.asarray(pair.a, dtype)
         a_hat = jnp.asarray(pair.a_hat, dtype)
