@@ -170,6 +170,7 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
         raise ShapeError(f"q0 and p0 must have the same shape (n,); got {q0.shape} and {p0.shape}.")
     t0j = jnp.asarray(t0, jnp.float64)
     qj, pj = jnp.asarray(q0), jnp.asarray(p0)
+    _check_mass_matrix(problem, t0j, qj, args)  # first: f, g and φ all solve with M
     m = _output_signature(problem, n, args)
     if lam0 is not None:
         lam0 = as_vector(lam0, "lam0")
@@ -217,6 +218,42 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
                 "(omit lam0 to have it computed)."
             )
     return q0, np.asarray(p0, np.float64), np.asarray(lam0, np.float64), float(np.max(np.abs(phi0)))
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _mass_matrix_at(problem, t, q, args):
+    return problem.mass_matrix(t, q, args)
+
+
+def _check_mass_matrix(problem, t0, q0, args) -> None:
+    """A MechanicalSystem's M(t0, q0) must be symmetric positive definite (it is solved by
+    Cholesky: an indefinite M would only show later, as a non-finite step)."""
+    mass = getattr(problem, "mass_matrix", None)
+    if mass is None:
+        return
+    n = q0.shape[0]
+    try:
+        mm = _mass_matrix_at(problem, t0, q0, args)
+    except Exception as exc:  # re-raised with context: the user's function failed
+        raise ShapeError(f"calling mass_matrix(t, q, args) at the initial point raised {type(exc).__name__}: {exc}") from exc
+    if mm.shape != (n, n):
+        raise ShapeError(f"mass_matrix(t, q, args) must return an array of shape {(n, n)}; it returned shape {mm.shape}.")
+    mm = np.asarray(mm, np.float64)
+    if not np.all(np.isfinite(mm)):
+        raise ShapeError(f"mass_matrix(t0, q0, args) contains non-finite values:\n{mm}")
+    asym = float(np.max(np.abs(mm - mm.T)))
+    if asym > 1e-12 * (1.0 + float(np.max(np.abs(mm)))):
+        raise ShapeError(
+            f"mass_matrix(t0, q0, args) must be symmetric; max |M - Mᵀ| = {asym:.3e}. "
+            "Return the symmetric kinetic-energy matrix (H = ½ pᵀ M⁻¹ p + V)."
+        )
+    eig = np.linalg.eigvalsh(mm)
+    if not eig[0] > 1e-14 * max(1.0, float(eig[-1])):
+        raise ShapeError(
+            f"mass_matrix(t0, q0, args) must be positive definite; its smallest eigenvalue is "
+            f"{eig[0]:.3e}. A zero or negative mass (or a configuration where M degenerates) "
+            "cannot be integrated; check the masses and inertias, or use PartitionedDAE."
+        )
 
 
 def _check_nonsingular(jac: np.ndarray) -> None:

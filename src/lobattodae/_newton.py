@@ -76,6 +76,7 @@ def newton_solve(
     tol: float,
     max_iterations: int,
     reuse_jacobian: bool,
+    jacobian: Callable[[jax.Array], tuple[jax.Array, jax.Array]] | None = None,
 ) -> tuple[jax.Array, NewtonInfo, JacobianCache]:
     """Solve ``residual(x) = 0`` starting from ``x0``.
 
@@ -83,15 +84,21 @@ def newton_solve(
     every iterate. With ``reuse_jacobian=True`` the LU factors in ``cache`` are reused
     (across calls too) as long as the iteration contracts with rate below
     ``THETA_REFRESH``; otherwise the Jacobian is re-evaluated at the current iterate.
+    ``jacobian(x) -> (residual(x), J(x))`` replaces the forward-mode Jacobian of ``residual``
+    when given (e.g. one assembled from structured blocks).
     """
     dtype = x0.dtype
 
     def fresh_jacobian(x):
-        def with_aux(y):
-            r = residual(y)
-            return r, r
+        if jacobian is not None:
+            r, jac = jacobian(x)
+        else:
 
-        jac, r = jax.jacfwd(with_aux, has_aux=True)(x)
+            def with_aux(y):
+                r = residual(y)
+                return r, r
+
+            jac, r = jax.jacfwd(with_aux, has_aux=True)(x)
         lu, piv = jsl.lu_factor(jac)
         return r, JacobianCache(lu, piv.astype(jnp.int32), jnp.asarray(True))
 

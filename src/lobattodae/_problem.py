@@ -13,6 +13,8 @@ from typing import Any, Callable
 import jax
 import jax.numpy as jnp
 
+from ._linalg import small_solve, spd_solve
+
 __all__ = [
     "PartitionedDAE",
     "NonholonomicSystem",
@@ -114,8 +116,10 @@ class NonholonomicSystem(_HamiltonianMixin):
 class MechanicalSystem(_HamiltonianMixin):
     r"""A mechanical system ``H = ½ pᵀ M(q)⁻¹ p + V(q)`` with constraints ``μ(q) q' = 0``.
 
-    ``q' = M(q)⁻¹ p`` is computed by a linear solve (no autodiff), and
-    ``D_p φ · D_λ g = μ M⁻¹ μᵀ``.
+    ``q' = M(q)⁻¹ p`` is computed by a Cholesky solve (written out element by element for
+    n ≤ 8, which is several times faster on CPU than a LAPACK call), and
+    ``D_p φ · D_λ g = μ M⁻¹ μᵀ``. ``M(q0)`` is checked to be symmetric positive definite
+    when a solve starts.
 
     Parameters
     ----------
@@ -134,11 +138,11 @@ class MechanicalSystem(_HamiltonianMixin):
     name: str = "MechanicalSystem"
 
     def hamiltonian(self, t, q, p, args):
-        v = jnp.linalg.solve(self.mass_matrix(t, q, args), p)
+        v = spd_solve(self.mass_matrix(t, q, args), p)
         return 0.5 * jnp.dot(p, v) + self.potential(t, q, args)
 
     def f(self, t, q, p, args):
-        return jnp.linalg.solve(self.mass_matrix(t, q, args), p)
+        return spd_solve(self.mass_matrix(t, q, args), p)
 
     def g(self, t, q, p, lam, args):
         return self.f_and_g(t, q, p, lam, args)[1]
@@ -199,7 +203,7 @@ def consistent_lambda(problem, t, q, p, lam_guess, args=None, iterations=3):
 
     def update(lam):
         r, jac = _hidden_constraint_and_jacobian(problem, t, q, p, lam, args)
-        return lam - jnp.linalg.solve(jac, r)
+        return lam - small_solve(jac, r)
 
     if iterations == 1:  # the common case inside the step loop: no loop construct
         return update(lam_guess)

@@ -105,6 +105,12 @@ class LobattoIIIAIIIB:
           fewer iterations. The step is no longer symmetric: on reversible problems the
           energy error drifts (linearly, at the order of the method) instead of staying
           bounded.
+    jacobian : {"structured", "autodiff"}
+        How Newton's Jacobian is formed. ``"structured"`` (default) differentiates each
+        stage's ``(f, g)`` in ``(q, p, λ)`` and ``φ`` in ``(q, p)`` and assembles the
+        block matrix from the coefficients (about 2x cheaper on the falling disk);
+        ``"autodiff"`` applies ``jax.jacfwd`` to the whole stage residual. Both give the
+        same matrix up to round-off.
     extrapolate : bool
         Start Newton from the previous step's stage polynomial extrapolated to the new step
         (falls back to an explicit Euler-type guess on the first step, and for large s where
@@ -117,6 +123,7 @@ class LobattoIIIAIIIB:
     reuse_jacobian: bool = True
     extrapolate: bool = True
     lam_start: str = "previous"
+    jacobian: str = "structured"
 
     def __post_init__(self):
         lobatto_pair(self.stages)  # validates s
@@ -126,6 +133,11 @@ class LobattoIIIAIIIB:
             raise ValueError(
                 f"lam_start must be 'previous' (the paper's scheme, Λ_1 = λ_n) or 'consistent' "
                 f"(Λ_1 from the hidden constraint at (t_n, q_n, p_n)); got {self.lam_start!r}."
+            )
+        if self.jacobian not in ("structured", "autodiff"):
+            raise ValueError(
+                f"jacobian must be 'structured' (per-stage blocks, the default) or 'autodiff' "
+                f"(forward-mode through the whole stage residual); got {self.jacobian!r}."
             )
         if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
             raise ValueError(
@@ -207,18 +219,56 @@ class LobattoIIIAIIIB:
         it after every step for its multiplier-drift diagnostic and, with
         ``lam_start="consistent"``, hands it to the next step instead of solving for it twice.
         """
-        pair = self.pair
-        s = self.stages
         q0 = jnp.asarray(q0)
         dtype = q0.dtype
         p0 = jnp.asarray(p0, dtype)
         lam0 = jnp.asarray(lam_start, dtype)
         h = jnp.asarray(h, dtype)
         t0 = jnp.asarray(t0, dtype)
-        n, m = q0.shape[0], lam0.shape[0]
         if state is None:
             state = self.init(q0, p0, lam0)
+        pair = self.pair
+        a = jnp.asarray(pair.a, dtype)
+        a_hat = jnp.asarray(pair.a_hat, dtype)
+        system = self._stage_system(problem, t0, q0, p0, lam0, h, args)
+        residual, structured_jacobian, unpack, pack, fg, tj = system
 
+        x0, plain = self._initial_guess(lam0, h, state, q0, p0, a, a_hat, pack)
+        x, ninfo, cache = newton_solve(
+            residual,
+            x0,
+            state.jacobian,
+            tol=self.tol,
+            max_iterations=self.max_iterations,
+            reuse_jacobian=self.reuse_jacobian,
+            jacobian=structured_jacobian if self.jacobian == "structured" else None,
+        )
+        Q, P, Z = unpack(x)
+        lam = Z / h
+        V, W = fg(tj, Q, P, lam)
+        b = jnp.asarray(pair.b, dtype)
+        q1 = Q[-1]
+        p1 = p0 + h * (b @ W)
+        lam1 = lam[-1]
+        info = StepInfo(ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians)
+        new_slopes = StageSlopes(V, W, lam)
+        have_correction = jnp.logical_and(state.have_slopes, plain is not None)
+        correction = new_slopes if plain is None else jax.tree_util.tree_map(jnp.subtract, new_slopes, plain)
+        new_state = StepperState(cache, new_slopes, correction, jnp.asarray(True), have_correction)
+        return q1, p1, lam1, info, new_state
+
+    def _stage_system(self, problem, t0, q0, p0, lam0, h, args):
+        """The Newton system of one step: ``(residual, structured_jacobian, unpack, pack,
+        fg, tj)`` for the unknowns ``x = (Q_2..Q_s, P_1..P_s, Z_2..Z_s)``."""
+        pair = self.pair
+        s = self.stages
+        q0 = jnp.asarray(q0)
+        dtype = q0.dtype
+        p0 = jnp.asarray(p0, dtype)
+        lam0 = jnp.asarray(lam0, dtype)
+        h = jnp.asarray(h, dtype)
+        t0 = jnp.asarray(t0, dtype)
+        n, m = q0.shape[0], lam0.shape[0]
         a = jnp.asarray(pair.a, dtype)
         a_hat = jnp.asarray(pair.a_hat, dtype)
         c = jnp.asarray(pair.c, dtype)
@@ -238,37 +288,26 @@ class LobattoIIIAIIIB:
         def pack(Q, P, Z):
             return jnp.concatenate([Q[1:].ravel(), P.ravel(), Z[1:].ravel()])
 
+        def stage_residual(Q, P, V, W, phi_values):
+            r_q = Q[1:] - q0 - h * (a[1:] @ V)
+            r_p = P - p0 - h * (a_hat @ W)
+            return jnp.concatenate([r_q.ravel(), r_p.ravel(), phi_values.ravel()])
+
         def residual(x):
             Q, P, Z = unpack(x)
             V, W = fg(tj, Q, P, Z / h)
-            r_q = Q[1:] - q0 - h * (a[1:] @ V)
-            r_p = P - p0 - h * (a_hat @ W)
             p_tilde = p0 + h * (a[1:] @ W)
-            r_phi = phi(tj[1:], Q[1:], p_tilde)
-            return jnp.concatenate([r_q.ravel(), r_p.ravel(), r_phi.ravel()])
+            return stage_residual(Q, P, V, W, phi(tj[1:], Q[1:], p_tilde))
 
-        x0, plain = self._initial_guess(lam0, h, state, q0, p0, a, a_hat, pack)
-        x, ninfo, cache = newton_solve(
-            residual,
-            x0,
-            state.jacobian,
-            tol=self.tol,
-            max_iterations=self.max_iterations,
-            reuse_jacobian=self.reuse_jacobian,
-        )
-        Q, P, Z = unpack(x)
-        lam = Z / h
-        V, W = fg(tj, Q, P, lam)
-        b = jnp.asarray(pair.b, dtype)
-        q1 = Q[-1]
-        p1 = p0 + h * (b @ W)
-        lam1 = lam[-1]
-        info = StepInfo(ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians)
-        new_slopes = StageSlopes(V, W, lam)
-        have_correction = jnp.logical_and(state.have_slopes, plain is not None)
-        correction = new_slopes if plain is None else jax.tree_util.tree_map(jnp.subtract, new_slopes, plain)
-        new_state = StepperState(cache, new_slopes, correction, jnp.asarray(True), have_correction)
-        return q1, p1, lam1, info, new_state
+        def structured_jacobian(x):
+            Q, P, Z = unpack(x)
+            (fq, fp, gq, gp, gl), (V, W) = _stage_jacobians(problem, tj, Q, P, Z / h, args)
+            p_tilde = p0 + h * (a[1:] @ W)
+            (phi_q, phi_p), phi_values = _constraint_jacobians(problem, tj[1:], Q[1:], p_tilde, args)
+            jac = _assemble_jacobian(a, a_hat, h, fq, fp, gq, gp, gl, phi_q, phi_p)
+            return stage_residual(Q, P, V, W, phi_values), jac
+
+        return residual, structured_jacobian, unpack, pack, fg, tj
 
     def _initial_guess(self, lam0, h, state, q0, p0, a, a_hat, pack):
         """Newton's starting point, and the plain extrapolation of the slopes (or None).
@@ -297,3 +336,73 @@ class LobattoIIIAIIIB:
         extrap = pack(q0 + h * (a @ V), p0 + h * (a_hat @ W), h * Lam)
         usable = jnp.logical_and(state.have_slopes, jnp.all(jnp.isfinite(extrap)))
         return jnp.where(usable, extrap, constant), plain
+
+
+# -- the stage Jacobian from per-stage blocks ---------------------------------------------
+def _stage_jacobians(problem, tj, Q, P, lam, args):
+    """Per stage j: ``f_q, f_p, g_q, g_p, g_λ`` at ``(t_j, Q_j, P_j, Λ_j)`` and ``(V_j, W_j)``.
+
+    One forward-mode pass with ``2n + m`` tangents per stage, instead of the
+    ``(2s-1) n + (s-1) m`` tangents of the whole residual, each of which runs all s stages.
+    """
+
+    def one(t, q, p, lam_j):
+        def field(qq, pp, ll):
+            v, w = vector_field(problem, t, qq, pp, ll, args)
+            return (v, w), (v, w)
+
+        ((fq, fp, _), (gq, gp, gl)), vw = jax.jacfwd(field, argnums=(0, 1, 2), has_aux=True)(q, p, lam_j)
+        return (fq, fp, gq, gp, gl), vw
+
+    return jax.vmap(one)(tj, Q, P, lam)
+
+
+def _constraint_jacobians(problem, t, Q, p_tilde, args):
+    """``(φ_q, φ_p)`` and ``φ`` at the constrained stages ``(t_i, Q_i, p̃_i)``, i = 2..s."""
+
+    def one(ti, q, p):
+        def con(qq, pp):
+            r = problem.phi(ti, qq, pp, args)
+            return r, r
+
+        return jax.jacfwd(con, argnums=(0, 1), has_aux=True)(q, p)
+
+    return jax.vmap(one)(t, Q, p_tilde)
+
+
+def _assemble_jacobian(a, a_hat, h, fq, fp, gq, gp, gl, phi_q, phi_p):
+    r"""The Jacobian of the stage residual with respect to ``(Q_2..Q_s, P_1..P_s, Z_2..Z_s)``.
+
+    With ``Z_k = h Λ_k``, ``p̃_i = p_0 + h Σ_k a_ik W_k`` and per-stage blocks
+    ``F_x = ∂f/∂x``, ``G_x = ∂g/∂x`` at stage k, ``Φ_x = ∂φ/∂x`` at ``(Q_i, p̃_i)``:
+
+    * ``r_q,i = Q_i - q_0 - h Σ a_ik V_k``: ``δ_ik I - h a_ik F_q``, ``-h a_ik F_p``, 0;
+    * ``r_p,i = P_i - p_0 - h Σ â_ik W_k``: ``-h â_ik G_q``, ``δ_ik I - h â_ik G_p``, ``-â_ik G_λ``;
+    * ``r_φ,i = φ(Q_i, p̃_i)``: ``δ_ik Φ_q + h a_ik Φ_p G_q``, ``h a_ik Φ_p G_p``, ``a_ik Φ_p G_λ``.
+    """
+    s, n, m = fq.shape[0], fq.shape[1], gl.shape[2]
+    eye_n = jnp.eye(n, dtype=fq.dtype)
+    eye_s = jnp.eye(s, dtype=fq.dtype)
+    a1 = a[1:]
+
+    def kron(coef, blocks):  # (rows, cols) coefficients times per-column blocks (cols, x, y)
+        return jnp.einsum("ik,kab->iakb", coef, blocks)
+
+    def flat(block):
+        r, x, c, y = block.shape
+        return block.reshape(r * x, c * y)
+
+    def through_phi(blocks):  # Φ_p,i @ block_k for rows i = 2..s, columns k
+        return jnp.einsum("ica,kab->ickb", phi_p, blocks)
+
+    rq_q = jnp.einsum("ik,ab->iakb", eye_s[1:, 1:], eye_n) - h * kron(a1[:, 1:], fq[1:])
+    rq_p = -h * kron(a1, fp)
+    rq_z = jnp.zeros((s - 1, n, s - 1, m), fq.dtype)
+    rp_q = -h * kron(a_hat[:, 1:], gq[1:])
+    rp_p = jnp.einsum("ik,ab->iakb", eye_s, eye_n) - h * kron(a_hat, gp)
+    rp_z = -kron(a_hat[:, 1:], gl[1:])
+    rf_q = jnp.einsum("ik,icb->ickb", eye_s[1:, 1:], phi_q) + h * a1[:, None, 1:, None] * through_phi(gq[1:])
+    rf_p = h * a1[:, None, :, None] * through_phi(gp)
+    rf_z = a1[:, None, 1:, None] * through_phi(gl[1:])
+    rows = [[rq_q, rq_p, rq_z], [rp_q, rp_p, rp_z], [rf_q, rf_p, rf_z]]
+    return jnp.concatenate([jnp.concatenate([flat(b) for b in row], axis=1) for row in rows], axis=0)

@@ -1,0 +1,75 @@
+"""The small dense solves used inside the step, and the mass-matrix check of solve."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import lobattodae as L
+from lobattodae._linalg import UNROLL_MAX, small_solve, spd_solve
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, UNROLL_MAX, UNROLL_MAX + 3])
+def test_spd_solve_matches_numpy(n):
+    rng = np.random.default_rng(n)
+    b = rng.standard_normal((n, n))
+    a = b @ b.T + 0.1 * np.eye(n)  # SPD, condition number up to ~1e3
+    rhs = rng.standard_normal(n)
+    x = np.asarray(jax.jit(spd_solve)(jnp.asarray(a), jnp.asarray(rhs)))
+    expected = np.linalg.solve(a, rhs)
+    np.testing.assert_allclose(x, expected, rtol=1e-11 * np.linalg.cond(a), atol=0)
+    # and its derivative (the stage Jacobian differentiates through it)
+    da = rng.standard_normal((n, n))
+    da = da + da.T
+    _, dx = jax.jvp(lambda aa: spd_solve(aa, jnp.asarray(rhs)), (jnp.asarray(a),), (jnp.asarray(da),))
+    np.testing.assert_allclose(dx, -np.linalg.solve(a, da @ expected), rtol=1e-9, atol=1e-12)
+
+
+def test_spd_solve_indefinite_gives_nan_not_a_wrong_answer():
+    a = jnp.array([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3, -1
+    assert not np.all(np.isfinite(np.asarray(spd_solve(a, jnp.array([1.0, 0.0])))))
+
+
+@pytest.mark.parametrize("m", [1, 2, 3])
+def test_small_solve_matches_numpy(m):
+    rng = np.random.default_rng(10 + m)
+    a = rng.standard_normal((m, m)) + 2 * np.eye(m)
+    rhs = rng.standard_normal(m)
+    np.testing.assert_allclose(small_solve(jnp.asarray(a), jnp.asarray(rhs)), np.linalg.solve(a, rhs), rtol=1e-13, atol=1e-14)
+
+
+def _disk_like(mass):
+    return L.MechanicalSystem(
+        mass_matrix=lambda t, q, args: mass,
+        potential=lambda t, q, args: 0.5 * q @ q,
+        constraint_matrix=lambda t, q, args: jnp.array([[-q[1], 0.0, 1.0]]),
+    )
+
+
+@pytest.mark.parametrize(
+    "mass, needle",
+    [
+        (jnp.array([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]), "must be symmetric"),
+        (jnp.diag(jnp.array([1.0, -1.0, 1.0])), "must be positive definite"),
+        (jnp.diag(jnp.array([1.0, 0.0, 1.0])), "must be positive definite"),
+        (jnp.eye(2), r"must return an array of shape \(3, 3\)"),
+    ],
+)
+def test_bad_mass_matrix_is_rejected(mass, needle):
+    with pytest.raises(L.ShapeError, match=needle):
+        L.solve(_disk_like(mass), L.LobattoIIIAIIIB(stages=2), (0.0, 1.0), [0.0, 0.0, 0.0], [1.0, 1.0, 0.0], n_steps=4)
+
+
+def test_good_mass_matrix_accepted_and_matches_nonholonomic_form():
+    """MechanicalSystem with M = diag(1, 2, 3) equals the NonholonomicSystem with the same H."""
+    mass = jnp.diag(jnp.array([1.0, 2.0, 3.0]))
+    mech = _disk_like(mass)
+    nh = L.NonholonomicSystem(
+        hamiltonian=lambda t, q, p, args: 0.5 * p @ jnp.linalg.solve(mass, p) + 0.5 * q @ q,
+        constraint_matrix=lambda t, q, args: jnp.array([[-q[1], 0.0, 1.0]]),
+    )
+    kw = dict(n_steps=20)
+    a = L.solve(mech, L.LobattoIIIAIIIB(stages=3), (0.0, 1.0), [0.0, 0.0, 0.0], [1.0, 1.0, 0.0], **kw)
+    b = L.solve(nh, L.LobattoIIIAIIIB(stages=3), (0.0, 1.0), [0.0, 0.0, 0.0], [1.0, 1.0, 0.0], **kw)
+    np.testing.assert_allclose(a.q, b.q, atol=1e-13)
+    np.testing.assert_allclose(a.lam, b.lam, atol=1e-12)
