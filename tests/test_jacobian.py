@@ -36,7 +36,8 @@ def test_structured_jacobian_equals_autodiff(name, s):
     q0, p0, lam0 = map(jnp.asarray, (ex.q0, ex.p0, ex.lam0))
     method = L.LobattoIIIAIIIB(stages=s)
     h = 0.07
-    residual, structured, unpack, pack, _, _ = method._stage_system(ex.problem, 0.3, q0, p0, lam0, h, ex.args)
+    t0, hj = jnp.asarray(0.3), jnp.asarray(h)
+    residual, structured, unpack, pack, _, _ = method._stage_system(ex.problem, t0, q0, p0, lam0, hj, ex.args)
     n, m = q0.shape[0], lam0.shape[0]
     rng = np.random.default_rng(s)
     # a generic point: stages scattered around the initial values

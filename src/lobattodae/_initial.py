@@ -226,8 +226,8 @@ def _mass_matrix_at(problem, t, q, args):
 
 
 def _check_mass_matrix(problem, t0, q0, args) -> None:
-    """A MechanicalSystem's M(t0, q0) must be symmetric positive definite (it is solved by
-    Cholesky: an indefinite M would only show later, as a non-finite step)."""
+    """A MechanicalSystem's M(t0, q0) must be symmetric positive definite (it is solved
+    without pivoting, which relies on that; a bad M would only show later, as a failed step)."""
     mass = getattr(problem, "mass_matrix", None)
     if mass is None:
         return

@@ -2,10 +2,11 @@
 
 XLA:CPU runs ``jnp.linalg.solve`` as a LAPACK call per (batched) system: for a 5×5 mass
 matrix that call, not the arithmetic, dominates a stage evaluation. Up to
-:data:`UNROLL_MAX` unknowns the factorisation is written out element by element instead,
-which XLA fuses with the surrounding arithmetic (and differentiates and vmaps like any other
-expression). Measured on the falling disk (n = 5, three stages): 6.0 µs → 2.0 µs per
-stage-residual evaluation.
+:data:`UNROLL_MAX` unknowns the elimination is written out column by column instead, which
+XLA fuses with the surrounding arithmetic (and differentiates and vmaps like any other
+expression). Measured on the falling disk (n = 5, s = 3, 2-core CPU, one compiled loop of
+1000 steps): 119–150 µs per step with LAPACK, 71–76 µs with this; element-wise Cholesky
+gave 80–97 µs and a larger program (compile 6–8 s instead of 6 s; LAPACK 4.6–4.9 s).
 """
 
 from __future__ import annotations
@@ -22,26 +23,20 @@ UNROLL_MAX = 8
 def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
     """Solve ``a x = b`` for symmetric positive definite ``a`` (n×n) and ``b`` (n,).
 
-    Cholesky without pivoting, unrolled for ``n ≤ UNROLL_MAX``. Only the lower triangle of
-    ``a`` is read. A matrix that is not positive definite gives NaN (the step then reports a
-    non-finite failure), never a wrong finite answer.
+    For ``n ≤ UNROLL_MAX``: Gauss-Jordan elimination without pivoting, unrolled over the
+    columns with whole-matrix updates (a handful of fusible operations per column; the pivots
+    of an SPD matrix are positive, so no pivoting is needed). This compiles to a smaller
+    program than element-wise Cholesky and runs faster inside the stage Jacobian. Larger
+    systems use LAPACK's Cholesky.
     """
     n = a.shape[-1]
     if n > UNROLL_MAX:
         return jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(a, lower=True), b)
-    low = [[None] * n for _ in range(n)]
+    aug = jnp.concatenate([a, b[:, None]], axis=1)
     for j in range(n):
-        d = a[j, j] - sum(low[j][k] * low[j][k] for k in range(j))
-        low[j][j] = jnp.sqrt(d)
-        for i in range(j + 1, n):
-            low[i][j] = (a[i, j] - sum(low[i][k] * low[j][k] for k in range(j))) / low[j][j]
-    y = []
-    for i in range(n):
-        y.append((b[i] - sum(low[i][k] * y[k] for k in range(i))) / low[i][i])
-    x = [None] * n
-    for i in reversed(range(n)):
-        x[i] = (y[i] - sum(low[k][i] * x[k] for k in range(i + 1, n))) / low[i][i]
-    return jnp.stack(x)
+        row = aug[j] / aug[j, j]
+        aug = (aug - jnp.outer(aug[:, j], row)).at[j].set(row)
+    return aug[:, n]
 
 
 def small_solve(a: jax.Array, b: jax.Array) -> jax.Array:

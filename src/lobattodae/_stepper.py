@@ -259,15 +259,11 @@ class LobattoIIIAIIIB:
 
     def _stage_system(self, problem, t0, q0, p0, lam0, h, args):
         """The Newton system of one step: ``(residual, structured_jacobian, unpack, pack,
-        fg, tj)`` for the unknowns ``x = (Q_2..Q_s, P_1..P_s, Z_2..Z_s)``."""
+        fg, tj)`` for the unknowns ``x = (Q_2..Q_s, P_1..P_s, Z_2..Z_s)`` (arrays as
+        prepared by :meth:`step_from`)."""
         pair = self.pair
         s = self.stages
-        q0 = jnp.asarray(q0)
         dtype = q0.dtype
-        p0 = jnp.asarray(p0, dtype)
-        lam0 = jnp.asarray(lam0, dtype)
-        h = jnp.asarray(h, dtype)
-        t0 = jnp.asarray(t0, dtype)
         n, m = q0.shape[0], lam0.shape[0]
         a = jnp.asarray(pair.a, dtype)
         a_hat = jnp.asarray(pair.a_hat, dtype)
