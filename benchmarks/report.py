@@ -100,13 +100,18 @@ def step_cost(path):
             print(f"| {r['N']} | {r['wall']:.3f} | {r['us_per_requested_step']:.1f} |")
         print()
     if "first_call" in d:
-        print("| fresh process | import [s] | first solve [s] | of which compiled loop [s] | second solve [s] |")
-        print("|---|---|---|---|---|")
+        print("| fresh process | import [s] | first solve [s] | of which compiled loop [s] | second solve [s] "
+              "| first solve, persistent cache: filling it / next process [s] |")
+        print("|---|---|---|---|---|---|")
         for k, r in d["first_call"].items():
             if "error" in r:
-                print(f"| {k} | failed | | | |")
+                print(f"| {k} | failed | | | | |")
                 continue
-            print(f"| {k} | {r['import']:.2f} | {r['first_call']:.2f} | {r['first_call_compiled_loop']:.2f} | {r['second_call']:.3f} |")
+            cached = r.get("cached")
+            cache_col = (f"{cached['filling_process']['first_call']:.2f} / {cached['next_process']['first_call']:.2f}"
+                         if cached else "–")
+            print(f"| {k} | {r['import']:.2f} | {r['first_call']:.2f} | {r['first_call_compiled_loop']:.2f} "
+                  f"| {r['second_call']:.3f} | {cache_col} |")
         print()
 
 

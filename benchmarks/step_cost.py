@@ -38,6 +38,7 @@ import os
 import platform
 import subprocess
 import sys
+import tempfile
 import time
 import warnings
 
@@ -221,6 +222,8 @@ import lobattodae as L
 from lobattodae.examples import get_example
 t_import = time.perf_counter() - t0
 name, s, N, T = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
+if len(sys.argv) > 5:
+    L.enable_compilation_cache(sys.argv[5])
 ex = get_example(name, t_end=T)
 m = L.LobattoIIIAIIIB(stages=s)
 warnings.simplefilter("ignore")
@@ -257,6 +260,22 @@ def part_first_call(quick: bool):
         _log(f"  fresh process, {key}: import {r['import']:.2f} s, first solve {r['first_call']:.2f} s, "
              f"(of which compile+run of the integration loop {r['first_call_compiled_loop']:.2f} s), "
              f"second solve {r['second_call']:.3f} s")
+        # with lobattodae.enable_compilation_cache: a first process fills the cache, a second
+        # (fresh) process loads the compiled loops from it
+        with tempfile.TemporaryDirectory() as cache:
+            runs = []
+            for _ in range(2):
+                res = subprocess.run([sys.executable, "-c", FIRST_CALL_SCRIPT, name, str(s), str(N), str(T), cache],
+                                     capture_output=True, text=True, env=env, timeout=600)
+                if res.returncode != 0:
+                    break
+                runs.append(json.loads(res.stdout.strip().splitlines()[-1]))
+        if len(runs) == 2:
+            r["cached"] = {"filling_process": runs[0], "next_process": runs[1]}
+            _log(f"    with the persistent compilation cache: first solve {runs[0]['first_call']:.2f} s in the "
+                 f"process that fills it, {runs[1]['first_call']:.2f} s in the next process")
+        else:
+            _log(f"    with the persistent compilation cache: FAILED\n{res.stderr[-2000:]}")
     return out
 
 
