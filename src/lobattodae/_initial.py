@@ -15,7 +15,7 @@ from ._errors import (
     ShapeError,
     SingularConstraintError,
 )
-from ._problem import constraint_lambda_jacobian, hidden_constraint
+from ._problem import _hidden_constraint_and_jacobian
 
 __all__ = ["validate_initial_values", "check_float64"]
 
@@ -120,10 +120,8 @@ def _output_signature(problem, n: int, args) -> int:
 @functools.partial(jax.jit, static_argnums=0)
 def _initial_quantities(problem, t, q, p, lam, args):
     """φ, the hidden-constraint residual, D_pφ·D_λg and one Newton update of λ (one compile)."""
-    phi = problem.phi(t, q, p, args)
-    r = hidden_constraint(problem, t, q, p, lam, args)
-    jac = constraint_lambda_jacobian(problem, t, q, p, lam, args)
-    return phi, r, jac
+    r, jac = _hidden_constraint_and_jacobian(problem, t, q, p, lam, args)
+    return problem.phi(t, q, p, args), r, jac
 
 
 @functools.partial(jax.jit, static_argnums=0)
