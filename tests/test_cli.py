@@ -92,6 +92,21 @@ def test_cli_persistent_compilation_cache(tmp_path):
     assert not off.exists()
 
 
+def test_cache_dir_environment_variable_enables_cache_on_import(tmp_path):
+    """A library user sets LOBATTODAE_CACHE_DIR: `import lobattodae` switches the cache on."""
+    cache = tmp_path / "libcache"
+    code = (
+        "import lobattodae as L; from lobattodae.examples import get_example; "
+        "ex = get_example('knife-edge'); "
+        "L.solve(ex.problem, L.LobattoIIIAIIIB(stages=2), (0.0, 0.2), ex.q0, ex.p0, n_steps=4, args=ex.args)"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "LOBATTODAE_NO_CACHE"}
+    env["LOBATTODAE_CACHE_DIR"] = str(cache)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert cache.is_dir() and any(cache.iterdir())
+
+
 def test_enable_compilation_cache_unwritable_directory(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")

@@ -4,7 +4,8 @@ Public namespaces: this module, :mod:`lobattodae.examples` (test problems) and
 :mod:`lobattodae.conditions` (simplifying assumptions and hypotheses of RK pairs).
 
 Importing lobattodae switches JAX to float64 (``jax_enable_x64``): the methods are
-designed for, and tested in, double precision.
+designed for, and tested in, double precision. With ``LOBATTODAE_CACHE_DIR`` set it also
+switches on JAX's persistent compilation cache there (see :func:`enable_compilation_cache`).
 """
 
 import jax as _jax
@@ -38,6 +39,12 @@ from ._stepper import LobattoIIIAIIIB, StepInfo, StepperState  # noqa: E402
 from ._tableau import LobattoPair, lobatto_iiia, lobatto_iiib, lobatto_nodes, lobatto_pair, lobatto_weights  # noqa: E402
 
 __version__ = "0.1.0"
+
+# Opt-in persistent compilation cache for library users: set LOBATTODAE_CACHE_DIR.
+import os as _os  # noqa: E402
+
+if _os.environ.get("LOBATTODAE_CACHE_DIR") and _os.environ.get("LOBATTODAE_NO_CACHE", "") in ("", "0"):
+    enable_compilation_cache(_os.environ["LOBATTODAE_CACHE_DIR"])
 
 __all__ = [
     "ConvergenceStudy",

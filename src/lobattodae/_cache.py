@@ -32,7 +32,8 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None) -> Path
     the knife edge (s = 3) 2.1 s → 0.8 s for the first call, on the falling disk 5.0 s → 1.1 s
     (what remains is tracing). This switches on JAX's persistent compilation cache for the
     whole process (``jax_compilation_cache_dir``), for every entry however fast it compiled.
-    The ``lobattodae`` command line uses it unless ``LOBATTODAE_NO_CACHE=1``.
+    The ``lobattodae`` command line uses it unless ``LOBATTODAE_NO_CACHE=1``; ``import
+    lobattodae`` calls it when ``LOBATTODAE_CACHE_DIR`` is set (no code change needed).
 
     Parameters
     ----------
