@@ -43,8 +43,10 @@ __version__ = "0.1.0"
 # Opt-in persistent compilation cache for library users: set LOBATTODAE_CACHE_DIR.
 import os as _os  # noqa: E402
 
-if _os.environ.get("LOBATTODAE_CACHE_DIR") and _os.environ.get("LOBATTODAE_NO_CACHE", "") in ("", "0"):
-    enable_compilation_cache(_os.environ["LOBATTODAE_CACHE_DIR"])
+from ._cache import CACHE_ENV as _CACHE_ENV, cache_switched_off as _cache_switched_off  # noqa: E402
+
+if _os.environ.get(_CACHE_ENV) and not _cache_switched_off():
+    enable_compilation_cache(_os.environ[_CACHE_ENV])
 
 __all__ = [
     "ConvergenceStudy",

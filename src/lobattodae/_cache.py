@@ -7,12 +7,17 @@ from pathlib import Path
 
 import jax
 
-__all__ = ["enable_compilation_cache", "default_cache_dir"]
+__all__ = ["enable_compilation_cache", "default_cache_dir", "cache_switched_off"]
 
 #: Environment variable naming the cache directory (used by the CLI and as the default here).
 CACHE_ENV = "LOBATTODAE_CACHE_DIR"
 #: Set to 1 to keep the CLI from using the cache.
 NO_CACHE_ENV = "LOBATTODAE_NO_CACHE"
+
+
+def cache_switched_off() -> bool:
+    """True when ``LOBATTODAE_NO_CACHE`` is set to anything but ``""`` or ``"0"``."""
+    return os.environ.get(NO_CACHE_ENV, "") not in ("", "0")
 
 
 def default_cache_dir() -> Path:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
 import time
@@ -12,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ._cache import NO_CACHE_ENV, enable_compilation_cache
+from ._cache import cache_switched_off, enable_compilation_cache
 
 __all__ = ["main"]
 
@@ -132,7 +131,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help
         return int(exc.code or 0)
     try:
-        if ns.command in _COMPILING_COMMANDS and os.environ.get(NO_CACHE_ENV, "") in ("", "0"):
+        if ns.command in _COMPILING_COMMANDS and not cache_switched_off():
             enable_compilation_cache()
         return _COMMANDS[ns.command](ns)
     except _UsageError as exc:

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import LobattoDAEInputError, NewtonFailure
-from ._initial import check_float64, validate_and_residual
+from ._initial import check_float64, lambda_newton_update, validate_and_residual
 from ._problem import consistent_lambda
 from ._results import Result
 from ._stepper import LobattoIIIAIIIB, StepperState
@@ -89,11 +89,6 @@ def _scan_steps(problem, method: LobattoIIIAIIIB, length: int, k0, n_total, t0, 
         out = _StepOut(q1, p1, lam1, code, info.iterations, info.residual_norm, info.n_jacobians, cons, drift)
         return new, out
 
-    if method.lam_start == "consistent":
-        # Λ_1 of the first step from the hidden constraint, as LobattoIIIAIIIB.step does (a
-        # given λ0 is only checked to a tolerance); later steps get it from the loop body.
-        lam_c = consistent_lambda(problem, t0, carry.q, carry.p, carry.lam, args, iterations=1)
-        carry = carry._replace(lam=jnp.where(k0 == 0, lam_c, carry.lam))
     return jax.lax.scan(body, carry, jnp.arange(length))
 
 
@@ -122,7 +117,12 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
     lam0 = jnp.asarray(lam0, jnp.float64)
     t0 = jnp.asarray(t0, jnp.float64)
     h = jnp.asarray(h, jnp.float64)
-    carry = _Carry(q0, p0, lam0, method.init(q0, p0, lam0), jnp.asarray(False))
+    # the loop carries Λ_1 of the next step (see _Carry); with lam_start="consistent" the first
+    # one comes from the hidden constraint, as in LobattoIIIAIIIB.step
+    lam_start = lam0
+    if method.lam_start == "consistent":
+        lam_start = consistent_lambda(problem, t0, q0, p0, lam0, args, iterations=1)
+    carry = _Carry(q0, p0, lam_start, method.init(q0, p0, lam0), jnp.asarray(False))
     _, out = _scan_steps(problem, method, n_steps, jnp.asarray(0), n_steps, t0, h, carry, args)
     codes = out.result
     failed = codes > 0
@@ -296,7 +296,12 @@ def solve(
     report = _progress_reporter(progress)
 
     q0j, p0j, lam0j = jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0)
-    carry = _Carry(q0j, p0j, lam0j, method.init(q0j, p0j, lam0j), jnp.asarray(False))
+    # The loop carries Λ_1 of the next step (see _Carry). With lam_start="consistent" the first
+    # one is λ(t0, q0, p0): a computed λ0 already is; a given one is only checked to a tolerance.
+    lam_start = lam0j
+    if method.lam_start == "consistent":
+        lam_start = jnp.asarray(lambda_newton_update(problem, t0, q0, p0, lam0, args))
+    carry = _Carry(q0j, p0j, lam_start, method.init(q0j, p0j, lam0j), jnp.asarray(False))
     meta = _checkpoint_meta(method, t0, t1, n, h, length, q0, p0, lam0)
     accepted: list[_StepOut] = []
     done, recoveries = 0, 0
