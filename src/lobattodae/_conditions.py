@@ -21,6 +21,14 @@ The simplifying assumptions, for a method ``(A, b, c)`` (and ``A_hat`` with
 
 ``C_hat`` and ``D_hat`` are ``C`` and ``D`` applied to ``A_hat``.
 
+Each ``X(k)`` is one equation per test polynomial ``phi`` of degree ``m - first``,
+``m = first..k`` (``first = 1`` for ``B, C, D`` and 2 for the pair assumptions): a
+quadrature (B), a chain of matrices applied to ``phi(c)`` against an iterated integral
+``int_0^{c_i}`` (C type), or ``(b phi(c))^T`` times a chain against ``b`` times an iterated
+tail integral ``int_{c_l}^1`` (D type). The table :data:`_ASSUMPTIONS` holds, per
+assumption, the arrays it uses, ``first`` and that residual; the public functions are thin
+wrappers around the generic :func:`_error`, :func:`_satisfies` and :func:`_max_order`.
+
 The ``*_error`` functions evaluate these equations literally by default
 (``basis="monomial"``). With ``basis="legendre"`` the test polynomials ``c^{m-1}``
 (``c^{m-2}``) are replaced by shifted Legendre polynomials of the same degree and the
@@ -39,38 +47,15 @@ import numpy as np
 from numpy.polynomial import Legendre, Polynomial
 
 __all__ = [
-    "DEFAULT_TOL",
-    "H2_CONDITION_LIMIT",
-    "Hypotheses",
-    "TableauReport",
-    "b_error",
-    "c_error",
-    "c_hat_c_error",
-    "cc_hat_error",
-    "check_tableau",
-    "conjugacy_error",
-    "d_error",
+    "DEFAULT_TOL", "H2_CONDITION_LIMIT", "Hypotheses", "TableauReport", "check_tableau",
+    "b_error", "c_error", "d_error", "cc_hat_error", "c_hat_c_error", "dd_hat_error",
     "d_hat_d_error",
-    "dd_hat_error",
-    "hypotheses",
-    "max_order",
-    "max_order_b",
-    "max_order_c",
-    "max_order_c_hat_c",
-    "max_order_cc_hat",
-    "max_order_d",
-    "max_order_d_hat_d",
-    "max_order_dd_hat",
-    "r_infinity",
-    "satisfies_b",
-    "satisfies_c",
-    "satisfies_c_hat_c",
-    "satisfies_cc_hat",
-    "satisfies_d",
-    "satisfies_d_hat_d",
-    "satisfies_dd_hat",
-    "stability_function",
-]
+    "satisfies_b", "satisfies_c", "satisfies_d", "satisfies_cc_hat", "satisfies_c_hat_c",
+    "satisfies_dd_hat", "satisfies_d_hat_d",
+    "max_order", "max_order_b", "max_order_c", "max_order_d", "max_order_cc_hat",
+    "max_order_c_hat_c", "max_order_dd_hat", "max_order_d_hat_d",
+    "conjugacy_error", "hypotheses", "r_infinity", "stability_function",
+]  # fmt: skip
 
 #: Residual (shifted Legendre form) below which a simplifying assumption counts as
 #: satisfied. For the Lobatto tableau with s <= 20, satisfied assumptions leave residuals
@@ -81,13 +66,20 @@ DEFAULT_TOL = 1e3 * np.finfo(np.float64).eps
 #: this limit.
 H2_CONDITION_LIMIT = 1e12
 
+# Basis of the decisions: a violated condition keeps a Legendre residual O(1/s) for every s,
+# while its monomial residual falls below any sensible tolerance (~1e-13 for B(2s-1), s = 12).
+_DECISION_BASIS = "legendre"
+
+# ----------------------------------------------------------------- the assumption table
+
 
 def _arrays(*xs: Any) -> list[np.ndarray]:
+    """The arguments as float64 arrays."""
     return [np.asarray(x, dtype=np.float64) for x in xs]
 
 
-def _basis_poly(basis: str, n: int) -> Any:
-    """Degree-``n`` test polynomial: ``t^n`` (paper) or ``P_n(2t - 1)`` (shifted Legendre).
+def _test_polynomial(basis: str, degree: int) -> Any:
+    """``t^degree`` (paper) or ``P_degree(2t - 1)`` (shifted Legendre) on ``[0, 1]``.
 
     Both families span the same spaces, so every assumption ``X(k)`` is equivalent in
     either basis; the shifted Legendre polynomials are bounded by 1 on ``[0, 1]`` and keep
@@ -95,309 +87,105 @@ def _basis_poly(basis: str, n: int) -> Any:
     in rounding error (``c^k`` is tiny for large ``k``).
     """
     if basis == "monomial":
-        return Polynomial.basis(n)
+        return Polynomial.basis(degree)
     if basis == "legendre":
-        return Legendre.basis(n, domain=[0.0, 1.0])
+        return Legendre.basis(degree, domain=[0.0, 1.0])
     raise ValueError(f"basis must be 'monomial' or 'legendre'; got {basis!r}.")
 
 
-def _residual_b(b, c, phi):
-    """``sum_i b_i phi(c_i) - int_0^1 phi``."""
-    big_phi = phi.integ(lbnd=0.0)
-    return np.atleast_1d(b @ phi(c) - big_phi(1.0))
+def _quadrature(x: dict[str, np.ndarray], phi: Any) -> np.ndarray:
+    """B type: ``sum_i b_i phi(c_i) - int_0^1 phi`` (``phi = t^{m-1}``: ``1/m``)."""
+    return np.atleast_1d(x["b"] @ phi(x["c"]) - phi.integ(lbnd=0.0)(1.0))
 
 
-def _residual_c(a, c, phi):
-    """``sum_j a_ij phi(c_j) - int_0^{c_i} phi`` (C: phi = t^{m-1} gives c_i^m / m)."""
-    return a @ phi(c) - phi.integ(lbnd=0.0)(c)
+def _row(*chain: str) -> Callable[[dict[str, np.ndarray], Any], np.ndarray]:
+    """C type, ``n = len(chain)`` matrices ``M_1 ... M_n``, residual per row ``i``.
 
-
-def _residual_d(a, b, c, phi):
-    """``sum_i b_i phi(c_i) a_ij - b_j int_{c_j}^1 phi`` (D: b_j (1 - c_j^m) / m)."""
-    big_phi = phi.integ(lbnd=0.0)
-    return (b * phi(c)) @ a - b * (big_phi(1.0) - big_phi(c))
-
-
-def _residual_pair_c(first, second, c, phi):
-    """``sum_{j,l} first_ij second_jl phi(c_l) - int_0^{c_i} int_0^t phi``.
-
-    With ``phi = t^{m-2}`` the double integral is ``c_i^m / (m (m-1))``.
+    ``(M_1 ... M_n phi(c))_i - int_0^{c_i} int_0^{t_1} ... phi`` (``n``-fold); for
+    ``phi = t^{m-n}`` the integral is ``c_i^m / m`` (C) or ``c_i^m / (m (m-1))`` (CC_hat).
     """
-    return first @ (second @ phi(c)) - phi.integ(2, lbnd=0.0)(c)
+
+    def residual(x: dict[str, np.ndarray], phi: Any) -> np.ndarray:
+        lhs = phi(x["c"])
+        for name in reversed(chain):
+            lhs = x[name] @ lhs
+        return lhs - phi.integ(len(chain), lbnd=0.0)(x["c"])
+
+    return residual
 
 
-def _residual_pair_d(first, second, b, c, phi):
-    """``sum_{i,j} b_i phi(c_i) first_ij second_jl - b_l int_{c_l}^1 int_tau^1 phi``.
+def _column(*chain: str) -> Callable[[dict[str, np.ndarray], Any], np.ndarray]:
+    """D type, ``n = len(chain)`` matrices, residual per column ``l``.
 
-    With ``phi = t^{m-2}`` the double integral is ``[(m-1) - (m c_l - c_l^m)] / (m (m-1))``.
+    ``((b phi(c))^T M_1 ... M_n)_l - b_l int_{c_l}^1 int_{t_1}^1 ... phi`` (``n``-fold); for
+    ``phi = t^{m-n}`` the integral is ``(1 - c_l^m) / m`` (D) or
+    ``[(m-1) - (m c_l - c_l^m)] / (m (m-1))`` (DD_hat).
     """
-    big_phi = phi.integ(lbnd=0.0)
-    tail = big_phi(1.0) - big_phi  # tau -> int_tau^1 phi
-    big_tail = tail.integ(lbnd=0.0)
-    return ((b * phi(c)) @ first) @ second - b * (big_tail(1.0) - big_tail(c))
+
+    def residual(x: dict[str, np.ndarray], phi: Any) -> np.ndarray:
+        b, c = x["b"], x["c"]
+        lhs = b * phi(c)
+        for name in chain:
+            lhs = lhs @ x[name]
+        big = phi.integ(lbnd=0.0)  # t -> int_0^t phi
+        for _ in chain[1:]:
+            big = (big(1.0) - big).integ(lbnd=0.0)  # integral from 0 of the tail int_t^1
+        return lhs - b * (big(1.0) - big(c))
+
+    return residual
 
 
-def _max_residual(residual: Callable[[Any], np.ndarray], first: int, k: int, shift: int,
-                  basis: str) -> float:
-    """``max_{m = first..k} max |residual(basis polynomial of degree m - shift)|``."""
+@dataclass(frozen=True)
+class _Assumption:
+    """A simplifying assumption ``X(k)``, a row of :data:`_ASSUMPTIONS`.
+
+    ``X(k)``: ``residual(arrays, phi) = 0`` for the test polynomials ``phi`` of degree
+    ``m - first``, ``m = first..k`` (vacuous for ``k < first``).
+    """
+
+    args: tuple[str, ...]  # arrays it uses, in the order of the public functions' arguments
+    first: int  # first nontrivial k, and the degree shift of the test polynomials
+    residual: Callable[[dict[str, np.ndarray], Any], np.ndarray]
+
+
+#: The simplifying assumptions (keys as in :class:`TableauReport`); ``C_hat`` and ``D_hat``
+#: are ``C`` and ``D`` with ``a = A_hat``.
+_ASSUMPTIONS: dict[str, _Assumption] = {
+    "B": _Assumption(("b", "c"), 1, _quadrature),
+    "C": _Assumption(("a", "c"), 1, _row("a")),
+    "D": _Assumption(("a", "b", "c"), 1, _column("a")),
+    "CC_hat": _Assumption(("a", "a_hat", "c"), 2, _row("a", "a_hat")),
+    "C_hatC": _Assumption(("a", "a_hat", "c"), 2, _row("a_hat", "a")),
+    "DD_hat": _Assumption(("a", "a_hat", "b", "c"), 2, _column("a", "a_hat")),
+    "D_hatD": _Assumption(("a", "a_hat", "b", "c"), 2, _column("a_hat", "a")),
+}
+
+
+def _error(name: str, k: int, basis: str, **arrays: Any) -> float:
+    """``max_{m = first..k} max |residual(test polynomial of degree m - first)|``."""
+    row = _ASSUMPTIONS[name]
+    x = dict(zip(row.args, _arrays(*(arrays[key] for key in row.args))))
     worst = 0.0
-    for m in range(first, k + 1):
-        res = residual(_basis_poly(basis, m - shift))
+    for m in range(row.first, k + 1):
+        res = row.residual(x, _test_polynomial(basis, m - row.first))
         worst = max(worst, float(np.max(np.abs(res))))
     return worst
 
 
-# ----------------------------------------------------------------------------- residuals
+def _satisfies(name: str, k: int, tol: float, **arrays: Any) -> bool:
+    """Whether ``X(k)`` holds: its Legendre-form residual is at most ``tol``."""
+    return _error(name, k, _DECISION_BASIS, **arrays) <= tol
 
 
-def b_error(b: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
-    """Residual of ``B(k)``: ``max_{m=1..k} |sum_i b_i c_i^{m-1} - 1/m|``.
-
-    Parameters
-    ----------
-    b, c : array_like, shape (s,)
-        Weights and nodes.
-    k : int
-        Order of the assumption; ``k < 1`` is vacuous (residual 0).
-    basis : {"monomial", "legendre"}, optional
-        ``"monomial"`` (default) evaluates the paper's equations literally. ``"legendre"``
-        replaces ``c^{m-1}`` by the shifted Legendre polynomial ``P_{m-1}(2c - 1)`` and
-        ``1/m`` by its integral over ``[0, 1]``: an equivalent, better scaled form (used
-        by :func:`satisfies_b` and :func:`max_order_b`).
-
-    Returns
-    -------
-    float
-        The largest absolute residual.
-    """
-    b, c = _arrays(b, c)
-    return _max_residual(lambda phi: _residual_b(b, c, phi), 1, k, 1, basis)
-
-
-def c_error(a: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
-    """Residual of ``C(k)``: ``max_{i, m=1..k} |sum_j a_ij c_j^{m-1} - c_i^m / m|``.
-
-    Apply it to ``A_hat`` for ``C_hat(k)``.
-
-    Parameters
-    ----------
-    a : array_like, shape (s, s)
-        Coefficient matrix.
-    c : array_like, shape (s,)
-        Nodes.
-    k : int
-        Order of the assumption; ``k < 1`` is vacuous (residual 0).
-    basis : {"monomial", "legendre"}, optional
-        Test polynomials ``c^{m-1}`` (the paper's form, default) or ``P_{m-1}(2c - 1)``
-        with right-hand side ``int_0^{c_i} P_{m-1}(2t - 1) dt`` (equivalent, better
-        scaled); see :func:`b_error`.
-
-    Returns
-    -------
-    float
-        The largest absolute residual.
-    """
-    a, c = _arrays(a, c)
-    return _max_residual(lambda phi: _residual_c(a, c, phi), 1, k, 1, basis)
-
-
-def d_error(a: Any, b: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
-    """Residual of ``D(k)``: ``max_{j, m=1..k} |sum_i b_i c_i^{m-1} a_ij - b_j (1 - c_j^m) / m|``.
-
-    Apply it to ``A_hat`` (with ``b_hat = b``) for ``D_hat(k)``.
-
-    Parameters
-    ----------
-    a : array_like, shape (s, s)
-        Coefficient matrix.
-    b, c : array_like, shape (s,)
-        Weights and nodes.
-    k : int
-        Order of the assumption; ``k < 1`` is vacuous (residual 0).
-    basis : {"monomial", "legendre"}, optional
-        Test polynomials ``c^{m-1}`` (the paper's form, default) or ``P_{m-1}(2c - 1)``
-        with right-hand side ``b_j int_{c_j}^1 P_{m-1}(2t - 1) dt``; see :func:`b_error`.
-
-    Returns
-    -------
-    float
-        The largest absolute residual.
-    """
-    a, b, c = _arrays(a, b, c)
-    return _max_residual(lambda phi: _residual_d(a, b, c, phi), 1, k, 1, basis)
-
-
-def cc_hat_error(a: Any, a_hat: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
-    """Residual of ``CC_hat(k)``: ``sum_{j,l} a_ij a_hat_jl c_l^{m-2} = c_i^m / (m (m-1))``.
-
-    Maximum over ``i = 1..s`` and ``m = 2..k``.
-
-    Parameters
-    ----------
-    a, a_hat : array_like, shape (s, s)
-        ``A`` and ``A_hat``.
-    c : array_like, shape (s,)
-        Nodes.
-    k : int
-        Order of the assumption; ``k < 2`` is vacuous (residual 0).
-    basis : {"monomial", "legendre"}, optional
-        Test polynomials ``c^{m-2}`` (the paper's form, default) or ``P_{m-2}(2c - 1)``
-        with right-hand side ``int_0^{c_i} int_0^t P_{m-2}(2u - 1) du dt``; see
-        :func:`b_error`.
-
-    Returns
-    -------
-    float
-        The largest absolute residual.
-    """
-    a, a_hat, c = _arrays(a, a_hat, c)
-    return _max_residual(lambda phi: _residual_pair_c(a, a_hat, c, phi), 2, k, 2, basis)
-
-
-def c_hat_c_error(a: Any, a_hat: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
-    """Residual of ``C_hatC(k)``: ``sum_{j,l} a_hat_ij a_jl c_l^{m-2} = c_i^m / (m (m-1))``.
-
-    Maximum over ``i = 1..s`` and ``m = 2..k``.
-
-    Parameters
-    ----------
-    a, a_hat : array_like, shape (s, s)
-        ``A`` and ``A_hat``.
-    c : array_like, shape (s,)
-        Nodes.
-    k : int
-        Order of the assumption; ``k < 2`` is vacuous (residual 0).
-    basis : {"monomial", "legendre"}, optional
-        See :func:`cc_hat_error`.
-
-    Returns
-    -------
-    float
-        The largest absolute residual.
-    """
-    a, a_hat, c = _arrays(a, a_hat, c)
-    return _max_residual(lambda phi: _residual_pair_c(a_hat, a, c, phi), 2, k, 2, basis)
-
-
-def dd_hat_error(
-    a: Any, a_hat: Any, b: Any, c: Any, k: int, *, basis: str = "monomial"
-) -> float:
-    """Residual of ``DD_hat(k)``.
-
-    ``sum_{i,j} b_i c_i^{m-2} a_ij a_hat_jl = b_l [(m-1) - (m c_l - c_l^m)] / (m (m-1))``,
-    maximum over ``l = 1..s`` and ``m = 2..k``.
-
-    Parameters
-    ----------
-    a, a_hat : array_like, shape (s, s)
-        ``A`` and ``A_hat``.
-    b, c : array_like, shape (s,)
-        Weights and nodes.
-    k : int
-        Order of the assumption; ``k < 2`` is vacuous (residual 0).
-    basis : {"monomial", "legendre"}, optional
-        Test polynomials ``c^{m-2}`` (the paper's form, default) or ``P_{m-2}(2c - 1)``
-        with right-hand side ``b_l int_{c_l}^1 int_tau^1 P_{m-2}(2u - 1) du dtau`` (for
-        ``c^{m-2}`` this double integral is ``[(m-1) - (m c_l - c_l^m)] / (m (m-1))``);
-        see :func:`b_error`.
-
-    Returns
-    -------
-    float
-        The largest absolute residual.
-    """
-    a, a_hat, b, c = _arrays(a, a_hat, b, c)
-    return _max_residual(
-        lambda phi: _residual_pair_d(a, a_hat, b, c, phi), 2, k, 2, basis
+def _max_order(name: str, cap: int | None, tol: float, **arrays: Any) -> int:
+    """Largest ``k <= cap`` (default ``4s + 2``) with ``X(k)``; ``first - 1`` if none."""
+    cap = 4 * np.asarray(arrays["c"]).shape[0] + 2 if cap is None else cap
+    return max_order(
+        lambda k: _satisfies(name, k, tol, **arrays), first=_ASSUMPTIONS[name].first, cap=cap
     )
 
 
-def d_hat_d_error(
-    a: Any, a_hat: Any, b: Any, c: Any, k: int, *, basis: str = "monomial"
-) -> float:
-    """Residual of ``D_hatD(k)``.
-
-    ``sum_{i,j} b_hat_i c_i^{m-2} a_hat_ij a_jl
-    = b_hat_l [(m-1) - (m c_l - c_l^m)] / (m (m-1))`` with ``b_hat = b``, maximum over
-    ``l = 1..s`` and ``m = 2..k``.
-
-    Parameters
-    ----------
-    a, a_hat : array_like, shape (s, s)
-        ``A`` and ``A_hat``.
-    b, c : array_like, shape (s,)
-        Weights (``b_hat = b``) and nodes.
-    k : int
-        Order of the assumption; ``k < 2`` is vacuous (residual 0).
-    basis : {"monomial", "legendre"}, optional
-        See :func:`dd_hat_error`.
-
-    Returns
-    -------
-    float
-        The largest absolute residual.
-    """
-    a, a_hat, b, c = _arrays(a, a_hat, b, c)
-    return _max_residual(
-        lambda phi: _residual_pair_d(a_hat, a, b, c, phi), 2, k, 2, basis
-    )
-
-
-# ------------------------------------------------------------------------------ yes / no
-#
-# The decisions use the shifted Legendre form of the residuals: equivalent to the paper's
-# monomial form, but the residual of a violated condition stays O(1/s) for every s, while
-# in the monomial form it falls below any sensible tolerance for s >= 12 (B(2s - 1) has a
-# monomial residual ~1e-13 at s = 12).
-
-_DECISION_BASIS = "legendre"
-
-
-def satisfies_b(b: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``B(k)`` holds: ``b_error(b, c, k, basis="legendre") <= tol``."""
-    return b_error(b, c, k, basis=_DECISION_BASIS) <= tol
-
-
-def satisfies_c(a: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``C(k)`` holds: ``c_error(a, c, k, basis="legendre") <= tol``."""
-    return c_error(a, c, k, basis=_DECISION_BASIS) <= tol
-
-
-def satisfies_d(a: Any, b: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``D(k)`` holds: ``d_error(a, b, c, k, basis="legendre") <= tol``."""
-    return d_error(a, b, c, k, basis=_DECISION_BASIS) <= tol
-
-
-def satisfies_cc_hat(a: Any, a_hat: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``CC_hat(k)`` holds: ``cc_hat_error(..., basis="legendre") <= tol``."""
-    return cc_hat_error(a, a_hat, c, k, basis=_DECISION_BASIS) <= tol
-
-
-def satisfies_c_hat_c(a: Any, a_hat: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``C_hatC(k)`` holds: ``c_hat_c_error(..., basis="legendre") <= tol``."""
-    return c_hat_c_error(a, a_hat, c, k, basis=_DECISION_BASIS) <= tol
-
-
-def satisfies_dd_hat(
-    a: Any, a_hat: Any, b: Any, c: Any, k: int, tol: float = DEFAULT_TOL
-) -> bool:
-    """Whether ``DD_hat(k)`` holds: ``dd_hat_error(..., basis="legendre") <= tol``."""
-    return dd_hat_error(a, a_hat, b, c, k, basis=_DECISION_BASIS) <= tol
-
-
-def satisfies_d_hat_d(
-    a: Any, a_hat: Any, b: Any, c: Any, k: int, tol: float = DEFAULT_TOL
-) -> bool:
-    """Whether ``D_hatD(k)`` holds: ``d_hat_d_error(..., basis="legendre") <= tol``."""
-    return d_hat_d_error(a, a_hat, b, c, k, basis=_DECISION_BASIS) <= tol
-
-
-# ---------------------------------------------------------------------------- max orders
-
-
-def max_order(
-    holds: Callable[[int], bool], *, first: int = 1, cap: int
-) -> int:
+def max_order(holds: Callable[[int], bool], *, first: int = 1, cap: int) -> int:
     """Largest ``k <= cap`` such that ``holds(k)``, scanning upward from ``first``.
 
     ``X(k)`` includes every index up to ``k``, so the scan stops at the first failure.
@@ -405,8 +193,7 @@ def max_order(
     Parameters
     ----------
     holds : callable
-        ``k -> bool``, whether ``X(k)`` holds (e.g.
-        ``lambda k: satisfies_b(b, c, k)``).
+        ``k -> bool``, whether ``X(k)`` holds (e.g. ``lambda k: satisfies_b(b, c, k)``).
     first : int, optional
         First nontrivial index of the assumption: 1 for ``B, C, D``; 2 for the pair
         assumptions ``CC_hat, DD_hat, C_hatC, D_hatD``.
@@ -426,62 +213,175 @@ def max_order(
     return k
 
 
-def _default_cap(c: Any) -> int:
-    return 4 * np.asarray(c).shape[0] + 2
+# ----------------------------------------------------------------------------- residuals
+
+
+def b_error(b: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
+    """Residual of ``B(k)``: ``max_{m=1..k} |sum_i b_i c_i^{m-1} - 1/m|``.
+
+    Parameters
+    ----------
+    b, c : array_like, shape (s,)
+        Weights and nodes (``a, a_hat``, shape (s, s), in the other ``*_error`` functions).
+    k : int
+        Order of the assumption; ``k < 1`` is vacuous (residual 0); ``k < 2`` for the pair
+        assumptions.
+    basis : {"monomial", "legendre"}, optional
+        ``"monomial"`` (default) evaluates the paper's equations literally. ``"legendre"``
+        replaces ``c^{m-1}`` by the shifted Legendre polynomial ``P_{m-1}(2c - 1)`` and
+        ``1/m`` by its integral over ``[0, 1]``: an equivalent, better scaled form (used
+        by :func:`satisfies_b` and :func:`max_order_b`).
+
+    Returns
+    -------
+    float
+        The largest absolute residual.
+    """
+    return _error("B", k, basis, b=b, c=c)
+
+
+def c_error(a: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
+    """Residual of ``C(k)``: ``max_{i, m=1..k} |sum_j a_ij c_j^{m-1} - c_i^m / m|``.
+
+    Apply it to ``A_hat`` for ``C_hat(k)``. Legendre form: ``P_{m-1}(2c - 1)`` against
+    ``int_0^{c_i} P_{m-1}(2t - 1) dt``. Arguments as in :func:`b_error`.
+    """
+    return _error("C", k, basis, a=a, c=c)
+
+
+def d_error(a: Any, b: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
+    """Residual of ``D(k)``: ``max_{j, m=1..k} |sum_i b_i c_i^{m-1} a_ij - b_j (1 - c_j^m) / m|``.
+
+    Apply it to ``A_hat`` (with ``b_hat = b``) for ``D_hat(k)``. Legendre form:
+    ``P_{m-1}(2c - 1)`` against ``b_j int_{c_j}^1 P_{m-1}(2t - 1) dt``. Arguments as in
+    :func:`b_error`.
+    """
+    return _error("D", k, basis, a=a, b=b, c=c)
+
+
+def cc_hat_error(a: Any, a_hat: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
+    """Residual of ``CC_hat(k)``: ``sum_{j,l} a_ij a_hat_jl c_l^{m-2} = c_i^m / (m (m-1))``.
+
+    Maximum over ``i = 1..s`` and ``m = 2..k``. Legendre form: ``P_{m-2}(2c - 1)`` against
+    ``int_0^{c_i} int_0^t P_{m-2}(2u - 1) du dt``. Arguments as in :func:`b_error`.
+    """
+    return _error("CC_hat", k, basis, a=a, a_hat=a_hat, c=c)
+
+
+def c_hat_c_error(a: Any, a_hat: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
+    """Residual of ``C_hatC(k)``: ``sum_{j,l} a_hat_ij a_jl c_l^{m-2} = c_i^m / (m (m-1))``.
+
+    Maximum over ``i = 1..s`` and ``m = 2..k``; see :func:`cc_hat_error`.
+    """
+    return _error("C_hatC", k, basis, a=a, a_hat=a_hat, c=c)
+
+
+def dd_hat_error(a: Any, a_hat: Any, b: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
+    """Residual of ``DD_hat(k)``.
+
+    ``sum_{i,j} b_i c_i^{m-2} a_ij a_hat_jl = b_l [(m-1) - (m c_l - c_l^m)] / (m (m-1))``,
+    maximum over ``l = 1..s`` and ``m = 2..k``. Legendre form: ``P_{m-2}(2c - 1)`` against
+    ``b_l int_{c_l}^1 int_tau^1 P_{m-2}(2u - 1) du dtau``. Arguments as in :func:`b_error`.
+    """
+    return _error("DD_hat", k, basis, a=a, a_hat=a_hat, b=b, c=c)
+
+
+def d_hat_d_error(a: Any, a_hat: Any, b: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
+    """Residual of ``D_hatD(k)``.
+
+    ``sum_{i,j} b_hat_i c_i^{m-2} a_hat_ij a_jl
+    = b_hat_l [(m-1) - (m c_l - c_l^m)] / (m (m-1))`` with ``b_hat = b``, maximum over
+    ``l = 1..s`` and ``m = 2..k``; see :func:`dd_hat_error`.
+    """
+    return _error("D_hatD", k, basis, a=a, a_hat=a_hat, b=b, c=c)
+
+
+# ------------------------------------------------------------------------------ yes / no
+
+
+def satisfies_b(b: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
+    """Whether ``B(k)`` holds: ``b_error(b, c, k, basis="legendre") <= tol``."""
+    return _satisfies("B", k, tol, b=b, c=c)
+
+
+def satisfies_c(a: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
+    """Whether ``C(k)`` holds: ``c_error(a, c, k, basis="legendre") <= tol``."""
+    return _satisfies("C", k, tol, a=a, c=c)
+
+
+def satisfies_d(a: Any, b: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
+    """Whether ``D(k)`` holds: ``d_error(a, b, c, k, basis="legendre") <= tol``."""
+    return _satisfies("D", k, tol, a=a, b=b, c=c)
+
+
+def satisfies_cc_hat(a: Any, a_hat: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
+    """Whether ``CC_hat(k)`` holds: ``cc_hat_error(..., basis="legendre") <= tol``."""
+    return _satisfies("CC_hat", k, tol, a=a, a_hat=a_hat, c=c)
+
+
+def satisfies_c_hat_c(a: Any, a_hat: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
+    """Whether ``C_hatC(k)`` holds: ``c_hat_c_error(..., basis="legendre") <= tol``."""
+    return _satisfies("C_hatC", k, tol, a=a, a_hat=a_hat, c=c)
+
+
+def satisfies_dd_hat(a: Any, a_hat: Any, b: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
+    """Whether ``DD_hat(k)`` holds: ``dd_hat_error(..., basis="legendre") <= tol``."""
+    return _satisfies("DD_hat", k, tol, a=a, a_hat=a_hat, b=b, c=c)
+
+
+def satisfies_d_hat_d(
+    a: Any, a_hat: Any, b: Any, c: Any, k: int, tol: float = DEFAULT_TOL
+) -> bool:
+    """Whether ``D_hatD(k)`` holds: ``d_hat_d_error(..., basis="legendre") <= tol``."""
+    return _satisfies("D_hatD", k, tol, a=a, a_hat=a_hat, b=b, c=c)
+
+
+# ---------------------------------------------------------------------------- max orders
 
 
 def max_order_b(b: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL) -> int:
     """Largest ``p`` with ``B(p)`` (0 if ``B(1)`` fails); ``cap`` defaults to ``4s + 2``."""
-    cap = _default_cap(c) if cap is None else cap
-    return max_order(lambda k: satisfies_b(b, c, k, tol), first=1, cap=cap)
+    return _max_order("B", cap, tol, b=b, c=c)
 
 
 def max_order_c(a: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL) -> int:
     """Largest ``q`` with ``C(q)`` (0 if ``C(1)`` fails); pass ``A_hat`` for ``C_hat``."""
-    cap = _default_cap(c) if cap is None else cap
-    return max_order(lambda k: satisfies_c(a, c, k, tol), first=1, cap=cap)
+    return _max_order("C", cap, tol, a=a, c=c)
 
 
 def max_order_d(
     a: Any, b: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL
 ) -> int:
     """Largest ``r`` with ``D(r)`` (0 if ``D(1)`` fails); pass ``A_hat`` for ``D_hat``."""
-    cap = _default_cap(c) if cap is None else cap
-    return max_order(lambda k: satisfies_d(a, b, c, k, tol), first=1, cap=cap)
+    return _max_order("D", cap, tol, a=a, b=b, c=c)
 
 
 def max_order_cc_hat(
     a: Any, a_hat: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL
 ) -> int:
     """Largest ``Q`` with ``CC_hat(Q)``; 1 means that ``CC_hat(2)`` already fails."""
-    cap = _default_cap(c) if cap is None else cap
-    return max_order(lambda k: satisfies_cc_hat(a, a_hat, c, k, tol), first=2, cap=cap)
+    return _max_order("CC_hat", cap, tol, a=a, a_hat=a_hat, c=c)
 
 
 def max_order_c_hat_c(
     a: Any, a_hat: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL
 ) -> int:
     """Largest ``Q_hat`` with ``C_hatC(Q_hat)``; 1 means that ``C_hatC(2)`` already fails."""
-    cap = _default_cap(c) if cap is None else cap
-    return max_order(lambda k: satisfies_c_hat_c(a, a_hat, c, k, tol), first=2, cap=cap)
+    return _max_order("C_hatC", cap, tol, a=a, a_hat=a_hat, c=c)
 
 
 def max_order_dd_hat(
     a: Any, a_hat: Any, b: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL
 ) -> int:
     """Largest ``R`` with ``DD_hat(R)``; 1 means that ``DD_hat(2)`` already fails."""
-    cap = _default_cap(c) if cap is None else cap
-    return max_order(lambda k: satisfies_dd_hat(a, a_hat, b, c, k, tol), first=2, cap=cap)
+    return _max_order("DD_hat", cap, tol, a=a, a_hat=a_hat, b=b, c=c)
 
 
 def max_order_d_hat_d(
     a: Any, a_hat: Any, b: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL
 ) -> int:
     """Largest ``R_hat`` with ``D_hatD(R_hat)``; 1 means that ``D_hatD(2)`` already fails."""
-    cap = _default_cap(c) if cap is None else cap
-    return max_order(
-        lambda k: satisfies_d_hat_d(a, a_hat, b, c, k, tol), first=2, cap=cap
-    )
+    return _max_order("D_hatD", cap, tol, a=a, a_hat=a_hat, b=b, c=c)
 
 
 # ------------------------------------------------------------- conjugacy and hypotheses
@@ -490,19 +390,8 @@ def max_order_d_hat_d(
 def conjugacy_error(a: Any, a_hat: Any, b: Any) -> float:
     """Residual of symplectic conjugacy: ``max_{i,j} |b_i a_hat_ij + b_j a_ji - b_i b_j|``.
 
-    (With ``b_hat = b``.) Zero for the Lobatto IIIA-IIIB pair.
-
-    Parameters
-    ----------
-    a, a_hat : array_like, shape (s, s)
-        ``A`` and ``A_hat``.
-    b : array_like, shape (s,)
-        Shared weights.
-
-    Returns
-    -------
-    float
-        The largest absolute residual.
+    (With ``b_hat = b``; ``a, a_hat`` of shape (s, s), ``b`` of shape (s,).) Zero for the
+    Lobatto IIIA-IIIB pair.
     """
     a, a_hat, b = _arrays(a, a_hat, b)
     res = b[:, None] * a_hat + b[None, :] * a.T - np.outer(b, b)
@@ -545,11 +434,6 @@ def _condition(m: np.ndarray) -> float:
     return cond if np.isfinite(cond) else float("inf")
 
 
-def _h2_condition(a: np.ndarray) -> float:
-    """Condition number of ``A_tilde = (a_ij)_{i,j >= 2}``."""
-    return _condition(a[1:, 1:])
-
-
 def hypotheses(pair: Any, tol: float = 0.0) -> Hypotheses:
     """Check H1, H2, H3 (for ``A``) and H1', H2' (for ``A_hat``).
 
@@ -568,7 +452,7 @@ def hypotheses(pair: Any, tol: float = 0.0) -> Hypotheses:
         The five booleans and the condition number of ``A_tilde``.
     """
     a, a_hat, b = _arrays(pair.a, pair.a_hat, pair.b)
-    cond = _h2_condition(a)
+    cond = _condition(a[1:, 1:])
     return Hypotheses(
         H1=bool(np.all(np.abs(a[0]) <= tol)),
         H2=bool(cond < H2_CONDITION_LIMIT),
@@ -585,29 +469,15 @@ def hypotheses(pair: Any, tol: float = 0.0) -> Hypotheses:
 def stability_function(a: Any, b: Any, z: Any) -> Any:
     """Stability function ``R(z) = 1 + z b^T (I - z A)^{-1} 1``.
 
-    ``y_1 = R(h lambda) y_0`` for one step on ``y' = lambda y``.
-
-    Parameters
-    ----------
-    a : array_like, shape (s, s)
-        Coefficient matrix.
-    b : array_like, shape (s,)
-        Weights.
-    z : complex or array_like
-        Argument(s) ``h lambda``.
-
-    Returns
-    -------
-    complex, float or ndarray
-        ``R(z)``, with the shape of ``z`` (real if ``z`` is real).
+    ``y_1 = R(h lambda) y_0`` for one step on ``y' = lambda y``. ``a`` has shape (s, s),
+    ``b`` shape (s,), and ``z`` (``h lambda``) is a complex or real scalar or array. Returns
+    ``R(z)`` with the shape of ``z`` (real if ``z`` is real).
     """
     a, b = _arrays(a, b)
     z = np.asarray(z)
-    s = b.shape[0]
     zf = z.reshape(-1)
-    dtype = np.result_type(zf.dtype, np.float64)
-    out = np.empty(zf.shape, dtype=dtype)
-    eye, ones = np.eye(s), np.ones(s)
+    out = np.empty(zf.shape, dtype=np.result_type(zf.dtype, np.float64))
+    eye, ones = np.eye(b.shape[0]), np.ones(b.shape[0])
     for n, zn in enumerate(zf):
         out[n] = 1.0 + zn * (b @ np.linalg.solve(eye - zn * a, ones))
     out = out.reshape(z.shape)
@@ -649,38 +519,18 @@ def r_infinity(a: Any, b: Any = None, tol: float = 1e-10) -> float:
     """
     a = np.asarray(a, dtype=np.float64)
     b = a[-1].copy() if b is None else np.asarray(b, dtype=np.float64)
-    s = b.shape[0]
     if _condition(a) < H2_CONDITION_LIMIT:  # A invertible
-        return float(1.0 - b @ np.linalg.solve(a, np.ones(s)))
-    if not np.all(a[0] == 0.0) or _h2_condition(a) >= H2_CONDITION_LIMIT:
+        return float(1.0 - b @ np.linalg.solve(a, np.ones(b.shape[0])))
+    a_tilde, alpha, b_tilde = a[1:, 1:], a[1:, 0], b[1:]
+    if not np.all(a[0] == 0.0) or _condition(a_tilde) >= H2_CONDITION_LIMIT:
         return float("nan")
-    a_tilde, alpha = a[1:, 1:], a[1:, 0]
-    b_tilde = b[1:]
     y0 = np.linalg.solve(a_tilde, alpha)  # A_tilde^{-1} alpha
-    linear = b[0] - b_tilde @ y0
-    if abs(linear) > tol * max(1.0, float(np.max(np.abs(b)))):
+    if abs(b[0] - b_tilde @ y0) > tol * max(1.0, float(np.max(np.abs(b)))):
         return float("inf")
     return float(1.0 - b_tilde @ np.linalg.solve(a_tilde, 1.0 + y0))
 
 
 # ---------------------------------------------------------------------------------- report
-
-
-def _predicted_orders(
-    p: int, q: int, r: int, r_inf: float, applicable: bool, tol: float
-) -> tuple[int | None, int | None, int | None]:
-    """Global orders from the paper's convergence theorem (None where it does not apply)."""
-    if not applicable:
-        return None, None, None
-    order_q = min(p, q + r + 1)
-    order_p = min(p, 2 * q, q + r)
-    if not np.isfinite(r_inf) or abs(r_inf) > 1.0 + tol:
-        order_lam = None
-    elif abs(r_inf - 1.0) <= tol:
-        order_lam = q - 1
-    else:
-        order_lam = q
-    return order_q, order_p, order_lam
 
 
 @dataclass(frozen=True)
@@ -748,9 +598,8 @@ class TableauReport:
         def order(k: int | None) -> str:
             return "n/a" if k is None else str(k)
 
-        s = self.s
-        rows = [
-            f"Lobatto IIIA-IIIB tableau check, s = {s}",
+        return "\n".join([
+            f"Lobatto IIIA-IIIB tableau check, s = {self.s}",
             "",
             "Simplifying assumptions (largest k that holds)",
             f"  A      : B({self.B})  C({self.C})  D({self.D})",
@@ -761,8 +610,7 @@ class TableauReport:
             "",
             "Hypotheses",
             f"  H1  a_1j = 0               : {yn(self.H1)}",
-            f"  H2  A_tilde invertible     : {yn(self.H2)}"
-            f"   (cond = {self.H2_condition:.3e})",
+            f"  H2  A_tilde invertible     : {yn(self.H2)}   (cond = {self.H2_condition:.3e})",
             f"  H3  a_sj = b_j             : {yn(self.H3)}",
             f"  H1' a_hat_is = 0           : {yn(self.H1_prime)}",
             f"  H2' a_hat_i1 = b_1         : {yn(self.H2_prime)}",
@@ -773,8 +621,7 @@ class TableauReport:
             f"  q      : {order(self.order_q)}",
             f"  p      : {order(self.order_p)}",
             f"  lambda : {order(self.order_lam)}",
-        ]
-        return "\n".join(rows)
+        ])
 
     def __str__(self) -> str:
         return self.format()
@@ -800,35 +647,21 @@ def check_tableau(pair: Any, tol: float = DEFAULT_TOL) -> TableauReport:
         ``s-1`` (odd ``s``).
     """
     a, a_hat, b, c = _arrays(pair.a, pair.a_hat, pair.b, pair.c)
-    kw = {"tol": tol}
-    p = max_order_b(b, c, **kw)
-    q = max_order_c(a, c, **kw)
-    r = max_order_d(a, b, c, **kw)
+    arrays = {"a": a, "a_hat": a_hat, "b": b, "c": c}
+    orders = {name: _max_order(name, None, tol, **arrays) for name in _ASSUMPTIONS}
+    hatted = dict(arrays, a=a_hat)  # C_hat and D_hat are C and D applied to A_hat
+    orders |= {f"{name}_hat": _max_order(name, None, tol, **hatted) for name in ("C", "D")}
     hyp = hypotheses(pair)
     conj = conjugacy_error(a, a_hat, b)
     r_inf = r_infinity(a, b)
-    applicable = hyp.H1 and hyp.H2 and hyp.H3 and conj <= tol
-    order_q, order_p, order_lam = _predicted_orders(p, q, r, r_inf, applicable, tol)
+    # Global orders from the paper's convergence theorem (None where it does not apply).
+    p, q, r = orders["B"], orders["C"], orders["D"]
+    predicted = dict(order_q=None, order_p=None, order_lam=None)
+    if hyp.H1 and hyp.H2 and hyp.H3 and conj <= tol:
+        predicted.update(order_q=min(p, q + r + 1), order_p=min(p, 2 * q, q + r))
+        if np.isfinite(r_inf) and abs(r_inf) <= 1.0 + tol:
+            predicted["order_lam"] = q - 1 if abs(r_inf - 1.0) <= tol else q
     return TableauReport(
-        s=int(pair.s),
-        B=p,
-        C=q,
-        D=r,
-        C_hat=max_order_c(a_hat, c, **kw),
-        D_hat=max_order_d(a_hat, b, c, **kw),
-        CC_hat=max_order_cc_hat(a, a_hat, c, **kw),
-        DD_hat=max_order_dd_hat(a, a_hat, b, c, **kw),
-        C_hatC=max_order_c_hat_c(a, a_hat, c, **kw),
-        D_hatD=max_order_d_hat_d(a, a_hat, b, c, **kw),
-        H1=hyp.H1,
-        H2=hyp.H2,
-        H3=hyp.H3,
-        H1_prime=hyp.H1_prime,
-        H2_prime=hyp.H2_prime,
-        H2_condition=hyp.H2_condition,
-        conjugacy_residual=conj,
-        r_infinity=r_inf,
-        order_q=order_q,
-        order_p=order_p,
-        order_lam=order_lam,
+        s=int(pair.s), **orders, **asdict(hyp), conjugacy_residual=conj, r_infinity=r_inf,
+        **predicted,
     )
