@@ -34,7 +34,7 @@ def test_non_integer_stages():
 
 
 def test_bad_lam_start():
-    with pytest.raises(ValueError, match="lam_start must be 'previous'"):
+    with pytest.raises(ValueError, match="lam_start must be 'auto'.*'previous'.*'consistent'"):
         L.LobattoIIIAIIIB(stages=3, lam_start="zero")
 
 

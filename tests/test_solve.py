@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae._solve import _run_chunk
+from lobattodae._loop import run_compiled
 from lobattodae.examples import get_example
 
 
@@ -86,7 +86,7 @@ def test_solve_equals_a_loop_of_public_steps(lam_start):
     sol = L.solve(ex.problem, m, (0.0, n * h), ex.q0, ex.p0, n_steps=n, args=ex.args)
     step = jax.jit(lambda t, q, p, lam, st: m.step(ex.problem, t, q, p, lam, h, ex.args, st))
     q, p, lam = map(jnp.asarray, (sol.q[0], sol.p[0], sol.lam[0]))
-    state = m.init(q, p, lam)
+    state = m.init(ex.problem, sol.t[0], q, p, lam, ex.args)
     for k in range(n):
         q, p, lam, info, state = step(sol.t[0] + k * h, q, p, lam, state)
         assert int(info.result) == 0
@@ -110,16 +110,31 @@ def test_step_is_jittable_and_vmappable(knife):
     np.testing.assert_allclose(batched[0][1], single[0] + jnp.array([1.0, 0, 0]), atol=1e-13)
 
 
-def test_second_call_with_same_shapes_does_not_recompile(knife):
+def test_new_numbers_do_not_recompile(knife):
+    """The loop is compiled once per (problem, method, shapes): a new number of steps, t_span,
+    initial values or args values reuse it."""
     m = L.LobattoIIIAIIIB(stages=2)
     _solve(knife, s=2, n=100)
-    size = _run_chunk._cache_size()
+    size = run_compiled._cache_size()
     sol = L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0 * 1.0, n_steps=100, args=knife.args)
     assert sol.success
-    assert _run_chunk._cache_size() == size
-    # a different step count in the same power-of-two bucket reuses it too
-    L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=90, args=knife.args)
-    assert _run_chunk._cache_size() == size
+    assert run_compiled._cache_size() == size
+    for n in (90, 3000, 7):
+        L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=n, args=knife.args)
+    L.solve(knife.problem, m, (1.0, 4.5), knife.q0, knife.p0, n_steps=33, args=knife.args)
+    L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=33, args=knife.args._replace(g=2.5))
+    assert run_compiled._cache_size() == size
+
+
+def test_integrate_is_compiled_once_per_shape(knife):
+    from lobattodae._loop import _integrate_compiled
+
+    m = L.LobattoIIIAIIIB(stages=2)
+    args = (knife.problem, m, 0.0, 0.05, 20, knife.q0, knife.p0, knife.lam0, knife.args)
+    L.integrate(*args)
+    size = _integrate_compiled._cache_size()
+    L.integrate(*args[:5], knife.q0 + 1.0, *args[6:])
+    assert _integrate_compiled._cache_size() == size
 
 
 def test_long_run_is_one_compiled_loop_per_chunk(knife):
@@ -153,20 +168,43 @@ def test_repeated_runs_bitwise_identical(knife):
     np.testing.assert_array_equal(a.lam, b.lam)
 
 
-def test_multiplier_drift_warning_on_long_paper_scheme_run():
-    ex = get_example("sleigh")
-    with pytest.warns(RuntimeWarning, match="lam_start='consistent'"):
-        sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=5), (0.0, 130.0), ex.q0, ex.p0, n_steps=1300,
-                      args=ex.args, throw=False)
-    assert np.max(sol.stats["multiplier_drift"]) > 1.0
+def test_lam_policies_on_the_sleigh():
+    """The Chaplygin sleigh (s = 5, h = 0.1, t = 130): the paper's scheme carries a λ error that
+    grows like exp(0.18 t) and spoils q (the run warns and says so in its message); the default
+    re-synchronises λ when its drift leaves the band and stays at round-off, as does
+    lam_start='consistent'."""
     import warnings
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=5, lam_start="consistent"), (0.0, 130.0), ex.q0,
-                      ex.p0, n_steps=1300, args=ex.args)
-    qe, pe, _ = ex.exact(np.array([130.0]))
-    assert np.max(np.abs(sol.q[-1] - qe[0])) < 1e-9
+    ex = get_example("sleigh")
+    qe = ex.exact(np.array([130.0]))[0][0]
+    kw = dict(n_steps=1300, args=ex.args)
+    with pytest.warns(RuntimeWarning, match="lam_start='auto'"):
+        paper = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=5, lam_start="previous"), (0.0, 130.0), ex.q0, ex.p0,
+                        throw=False, **kw)
+    assert np.max(paper.stats["multiplier_drift"]) > 1.0 and paper.stats["lam_excursions"] > 0
+    assert "Warning: the multiplier" in paper.message and paper.stats["lam_resets"] == 0
+    assert np.max(np.abs(paper.q[-1] - qe)) > 1e-2
+    for mode in ("auto", "consistent"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=5, lam_start=mode), (0.0, 130.0), ex.q0, ex.p0, **kw)
+        assert np.max(np.abs(sol.q[-1] - qe)) < 1e-9, mode
+        assert np.max(sol.stats["multiplier_drift"]) < 1e-4, mode
+    assert 1 <= sol.stats["lam_resets"] or mode == "consistent"
+    auto = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=5), (0.0, 130.0), ex.q0, ex.p0, **kw)
+    assert 1 <= auto.stats["lam_resets"] <= 10 and auto.stats["lam_resets"] == int(np.sum(auto.stats["lam_resync"]))
+
+
+def test_auto_never_resets_on_a_reversible_problem():
+    """On the reversible contact oscillator the λ error of the paper's scheme stays in its band:
+    'auto' never re-synchronises, so it is the symmetric scheme, bit for bit."""
+    ex = get_example("contact")
+    h = 2 * np.sin(np.pi / 15)
+    kw = dict(n_steps=20_000, args=ex.args)
+    auto = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 20_000 * h), ex.q0, ex.p0, **kw)
+    paper = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3, lam_start="previous"), (0.0, 20_000 * h), ex.q0, ex.p0, **kw)
+    assert auto.stats["lam_resets"] == 0 and paper.stats["lam_excursions"] == 0
+    np.testing.assert_array_equal(auto.q, paper.q)
 
 
 def test_float64_without_user_configuration(tmp_path):

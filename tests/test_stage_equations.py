@@ -1,6 +1,7 @@
-"""The structured stage Jacobian (per-stage blocks assembled from the coefficients) equals
-forward-mode autodiff of the whole stage residual, and both Newton variants give the same
-solution."""
+"""The stage equations (lobattodae._stage_equations): the structured stage Jacobian (per-stage
+blocks assembled from the coefficients) equals forward-mode autodiff of the whole stage
+residual, both Newton variants give the same solution, the residual vanishes at a converged
+step, the layout round-trips, and the predictor evaluated at times is exact on polynomials."""
 
 import jax
 import jax.numpy as jnp
@@ -8,6 +9,7 @@ import numpy as np
 import pytest
 
 import lobattodae as L
+from lobattodae import _stage_equations as se
 from lobattodae.examples import get_example
 
 # NonholonomicSystems and a MechanicalSystem with a configuration-dependent mass matrix (m = 2)
@@ -36,12 +38,19 @@ def test_structured_jacobian_equals_autodiff(name, s):
     q0, p0, lam0 = map(jnp.asarray, (ex.q0, ex.p0, ex.lam0))
     method = L.LobattoIIIAIIIB(stages=s)
     h = 0.07
-    t0, hj = jnp.asarray(0.3), jnp.asarray(h)
-    residual, structured, unpack, pack, _, _ = method._stage_system(ex.problem, t0, q0, p0, lam0, hj, ex.args)
     n, m = q0.shape[0], lam0.shape[0]
+    params = se.StageParams(jnp.asarray(0.3), jnp.asarray(h), q0, p0, lam0, ex.args)
+    layout = se.Layout(s, n, m)
+
+    def residual(x):
+        return se.stage_residual(ex.problem, method.pair, layout, x, params)
+
+    def structured(x):
+        return se.stage_jacobian(ex.problem, method.pair, layout, x, params)
+
     rng = np.random.default_rng(s)
     # a generic point: stages scattered around the initial values
-    x = pack(
+    x = layout.pack(
         q0 + 0.05 * rng.standard_normal((s, n)),
         p0 + 0.05 * rng.standard_normal((s, n)),
         h * (lam0 + 0.1 * rng.standard_normal((s, m))),
@@ -73,3 +82,55 @@ def test_structured_and_autodiff_newton_agree(name):
 def test_bad_jacobian_option():
     with pytest.raises(ValueError, match="jacobian must be 'structured'"):
         L.LobattoIIIAIIIB(stages=3, jacobian="numeric")
+
+
+def test_layout_round_trip():
+    layout = se.Layout(4, 3, 2)
+    rng = np.random.default_rng(0)
+    Q, P, Z = rng.standard_normal((4, 3)), rng.standard_normal((4, 3)), rng.standard_normal((4, 2))
+    params = se.StageParams(0.0, jnp.asarray(0.5), jnp.asarray(Q[0]), jnp.zeros(3), jnp.asarray(Z[0] / 0.5), None)
+    x = layout.pack(jnp.asarray(Q), jnp.asarray(P), jnp.asarray(Z))
+    assert x.shape == (layout.size,) == (L.LobattoIIIAIIIB(stages=4).n_unknowns(3, 2),)
+    Q2, P2, Z2 = layout.unpack(x, params)
+    np.testing.assert_allclose(Q2, Q, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(P2, P, rtol=0, atol=0)
+    np.testing.assert_allclose(Z2, Z, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("s", [2, 3, 5])
+def test_tableau_product_matches_matmul_and_skips_structural_zeros(s):
+    pair = L.lobatto_pair(s)
+    x = jnp.asarray(np.random.default_rng(s).standard_normal((s, 4)))
+    for coef in (pair.a, pair.a_hat, pair.a[1:], pair.b[None]):
+        np.testing.assert_allclose(se.tableau_product(coef, x), coef @ np.asarray(x), rtol=1e-14, atol=1e-15)
+    assert np.all(se.tableau_product(pair.a[:1], x) == 0.0)  # IIIA's first row is zero
+
+
+@pytest.mark.parametrize("ratio", [1.0, 0.5, 1.7])
+def test_predictor_is_exact_on_polynomial_slopes(ratio):
+    """Slopes that are polynomials of degree s-1 in t are extrapolated exactly to the new stage
+    times, also when the step size changes (the predictor works with times, not step counts)."""
+    s = 4
+    pair = L.lobatto_pair(s)
+    layout = se.Layout(s, 1, 1)
+    h_prev, h = 0.1, 0.1 * ratio
+    poly = np.array([0.3, -1.0, 2.0, 0.5])  # degree 3 = s - 1
+    t_prev = h_prev * pair.c  # the previous step's stage times, ending at t0 = h_prev
+    slopes = tuple(jnp.asarray(np.polyval(poly * k, t_prev)[:, None]) for k in (1.0, 2.0, -1.0))
+    zero = tuple(jnp.zeros((s, 1)) for _ in range(3))
+    params = se.StageParams(jnp.asarray(h_prev), jnp.asarray(h), jnp.zeros(1), jnp.zeros(1), jnp.zeros(1), None)
+    _, plain = se.predict_stages(pair, layout, params, slopes, zero, jnp.asarray(h_prev))
+    t_new = h_prev + h * pair.c
+    for k, got in zip((1.0, 2.0, -1.0), plain):
+        np.testing.assert_allclose(np.asarray(got)[:, 0], np.polyval(poly * k, t_new), rtol=1e-12, atol=1e-13)
+
+
+@pytest.mark.parametrize("s", [2, 3, 4])
+def test_residual_vanishes_at_a_solved_step(s):
+    ex = get_example("falling-disk-general")
+    method = L.LobattoIIIAIIIB(stages=s)
+    q0, p0, lam0 = map(jnp.asarray, (ex.q0, ex.p0, ex.lam0))
+    q1, p1, lam1, info, state = method.step(ex.problem, 0.0, q0, p0, lam0, 0.05, ex.args)
+    assert int(info.result) == 0
+    # the constraint holds at the step point (H3: a_sj = b_j), to round-off
+    assert float(jnp.max(jnp.abs(ex.problem.phi(0.05, q1, p1, ex.args)))) < 1e-14

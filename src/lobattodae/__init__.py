@@ -24,7 +24,7 @@ from ._errors import (  # noqa: E402
     SingularConstraintError,
     SolverError,
 )
-from ._initial import validate_initial_values  # noqa: E402
+from ._validate import validate_initial_values  # noqa: E402
 from ._plotting import plot_convergence, plot_diagnostics, plot_solution  # noqa: E402
 from ._problem import (  # noqa: E402
     MechanicalSystem,
@@ -34,7 +34,8 @@ from ._problem import (  # noqa: E402
     hidden_constraint,
 )
 from ._results import Result  # noqa: E402
-from ._solve import Solution, integrate, solve  # noqa: E402
+from ._loop import IntegrateResult, integrate
+from ._solve import Solution, solve  # noqa: E402
 from ._stepper import LobattoIIIAIIIB, StepInfo, StepperState  # noqa: E402
 from ._tableau import LobattoPair, lobatto_iiia, lobatto_iiib, lobatto_nodes, lobatto_pair, lobatto_weights  # noqa: E402
 
@@ -62,6 +63,7 @@ __all__ = [
     "plot_diagnostics",
     "plot_solution",
     "InconsistentInitialValuesError",
+    "IntegrateResult",
     "LobattoDAEInputError",
     "LobattoIIIAIIIB",
     "LobattoPair",

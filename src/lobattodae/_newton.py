@@ -1,39 +1,71 @@
-"""A small jit-able Newton solver with an optional reused (simplified-Newton) Jacobian.
+"""A small jit-able (simplified) Newton solver for the stage equations.
 
-The iteration never raises inside a trace: it returns a :class:`~lobattodae._results.Result`
-code together with the iterate, so that callers decide whether to throw.
+``newton_solve(fn, jac_fn, x0, params, cache, options)`` solves ``fn(x, params) = 0``. It is
+split into :func:`newton_init`, :func:`newton_step` and :func:`newton_done`, with the
+stopping rules as named predicates. It never raises inside a trace: it returns a
+:class:`~lobattodae._results.Result` code with the iterate, and the caller decides.
+
+Simplified Newton: the inverse of the Jacobian (computed through an LU factorisation) is
+kept in a :class:`JacobianCache` across iterations *and* across calls, and refreshed only
+when the iteration contracts slowly. Each iteration is then one residual evaluation and one
+matrix-vector product; the converged solution is the same to the tolerance, since only the
+residual decides where the iteration stops.
 """
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+import functools
+from dataclasses import dataclass
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import jax.scipy.linalg as jsl
 
 from ._results import Result
 
-__all__ = ["JacobianCache", "NewtonInfo", "newton_solve", "empty_jacobian_cache"]
+__all__ = ["JacobianCache", "NewtonInfo", "NewtonOptions", "empty_jacobian_cache", "newton_solve"]
 
-# Convergence is declared when the scaled increment |dx_i| / (tol (1 + |x_i|)) is <= 1,
-# or when the Hairer-Wanner estimate theta/(1-theta) * |dx| of the remaining error is.
-# Once the contraction rate theta exceeds THETA_STAGNATION the iterates are dominated by
-# round-off; they are accepted when the increment is already below
-# STAGNATION_LEVEL * tol (relative), and reported as divergence otherwise.
-THETA_REFRESH = 0.05
+#: A reused Jacobian is refreshed when it contracts slower than THETA_REFRESH, or when the solve
+#: has not converged after REFRESH_ITERATIONS iterations with it (a fresh Jacobian costs about
+#: as much as several iterations, and a stale one often converges superlinearly on the nearly
+#: linear parts of the stage system, so a single ratio of increments predicts little).
+THETA_REFRESH = 0.5
+REFRESH_ITERATIONS = 5
+#: With a fresh Jacobian, a contraction rate above this means the iterates are dominated by
+#: round-off: they are accepted when the increment is below STAGNATION_LEVEL·tol, else the
+#: solve has stagnated.
 THETA_STAGNATION = 0.9
 STAGNATION_LEVEL = 1e3
+#: With a fresh Jacobian, increments growing by this factor mean divergence.
 THETA_DIVERGED = 2.0
+#: Iterations with a reused Jacobian before the stopping rules are first evaluated.
+FAST_ITERATIONS = 3
 #: With a reused Jacobian the rate estimate is less reliable: demand a 10x smaller predicted error.
 KAPPA_STALE = 0.1
 
 
-class JacobianCache(NamedTuple):
-    """LU factors of the stage Jacobian, kept between Newton solves (simplified Newton)."""
+@dataclass(frozen=True)
+class NewtonOptions:
+    """Tolerance ``|Δx_i| ≤ tol (1 + |x_i|)``, iteration limit, and whether to reuse the
+    Jacobian across iterations and calls (simplified Newton)."""
 
-    lu: jax.Array
-    piv: jax.Array
+    tol: float = 1e-14
+    max_iterations: int = 20
+    reuse_jacobian: bool = True
+
+    def __post_init__(self):
+        if isinstance(self.tol, bool) or not (isinstance(self.tol, (int, float)) and 0 < self.tol < 1):
+            raise ValueError(f"tol must be a float in (0, 1); got tol={self.tol!r}.")
+        if isinstance(self.max_iterations, bool) or not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
+            raise ValueError(f"max_iterations must be a positive integer; got {self.max_iterations!r}.")
+        if not isinstance(self.reuse_jacobian, bool):
+            raise ValueError(f"reuse_jacobian must be True or False; got {self.reuse_jacobian!r}.")
+
+
+class JacobianCache(NamedTuple):
+    """The inverse of a stage Jacobian, kept between Newton solves (simplified Newton)."""
+
+    inverse: jax.Array
     valid: jax.Array  # bool scalar
 
 
@@ -43,144 +75,200 @@ class NewtonInfo(NamedTuple):
     result: jax.Array  # int32 Result code
     iterations: jax.Array  # int32
     residual_norm: jax.Array  # max-norm of the last evaluated residual
-    n_jacobians: jax.Array  # int32, Jacobian evaluations + LU factorisations
+    n_jacobians: jax.Array  # int32, Jacobian evaluations (each with one factorisation)
 
 
-def empty_jacobian_cache(size: int, dtype) -> JacobianCache:
-    return JacobianCache(
-        lu=jnp.zeros((size, size), dtype),
-        piv=jnp.zeros((size,), jnp.int32),
-        valid=jnp.asarray(False),
-    )
-
-
-class _Carry(NamedTuple):
+class NewtonState(NamedTuple):
     x: jax.Array
-    k: jax.Array
-    nrm_prev: jax.Array
-    theta_prev: jax.Array
-    done: jax.Array
-    result: jax.Array
+    k: jax.Array  # iterations done
+    nrm_prev: jax.Array  # scaled norm of the last increment
+    theta_prev: jax.Array  # the contraction rate before that
+    result: jax.Array  # -1 while running, else a Result code
     res_norm: jax.Array
     cache: JacobianCache
-    fresh: jax.Array  # the cached Jacobian was evaluated during this solve
-    refresh: jax.Array  # evaluate a new Jacobian at the next iteration
+    refresh: jax.Array  # evaluate a fresh Jacobian before the next iteration
+    stale: jax.Array  # the last iteration used a Jacobian from an earlier iterate
     n_jac: jax.Array
 
 
-def newton_solve(
-    residual: Callable[[jax.Array], jax.Array],
-    x0: jax.Array,
-    cache: JacobianCache,
-    *,
-    tol: float,
-    max_iterations: int,
-    reuse_jacobian: bool,
-    jacobian: Callable[[jax.Array], tuple[jax.Array, jax.Array]] | None = None,
-) -> tuple[jax.Array, NewtonInfo, JacobianCache]:
-    """Solve ``residual(x) = 0`` starting from ``x0``.
+def empty_jacobian_cache(size: int, dtype) -> JacobianCache:
+    return JacobianCache(inverse=jnp.zeros((size, size), dtype), valid=jnp.asarray(False))
 
-    With ``reuse_jacobian=False`` this is Newton's method with a fresh autodiff Jacobian at
-    every iterate. With ``reuse_jacobian=True`` the LU factors in ``cache`` are reused
-    (across calls too) as long as the iteration contracts with rate below
-    ``THETA_REFRESH``; otherwise the Jacobian is re-evaluated at the current iterate.
-    ``jacobian(x) -> (residual(x), J(x))`` replaces the forward-mode Jacobian of ``residual``
-    when given (e.g. one assembled from structured blocks).
-    """
+
+def newton_init(x0, cache: JacobianCache) -> NewtonState:
     dtype = x0.dtype
-
-    def fresh_jacobian(x):
-        if jacobian is not None:
-            r, jac = jacobian(x)
-        else:
-
-            def with_aux(y):
-                r = residual(y)
-                return r, r
-
-            jac, r = jax.jacfwd(with_aux, has_aux=True)(x)
-        lu, piv = jsl.lu_factor(jac)
-        return r, JacobianCache(lu, piv.astype(jnp.int32), jnp.asarray(True))
-
-    def old_jacobian(x, cache):
-        return residual(x), cache
-
-    def body(c: _Carry) -> _Carry:
-        need = jnp.logical_or(c.refresh, jnp.logical_not(c.cache.valid))
-        if not reuse_jacobian:
-            need = jnp.asarray(True)
-            r, cache = fresh_jacobian(c.x)
-        else:
-            r, cache = jax.lax.cond(need, fresh_jacobian, lambda x: old_jacobian(x, c.cache), c.x)
-        dx = jsl.lu_solve((cache.lu, cache.piv), r)
-        x = c.x - dx
-        scale = tol * (1.0 + jnp.abs(x))
-        nrm = jnp.max(jnp.abs(dx) / scale)
-        first = c.k == 0
-        theta = jnp.where(first, 0.0, nrm / jnp.where(c.nrm_prev > 0, c.nrm_prev, 1.0))
-        fresh = jnp.logical_or(c.fresh, need)
-        finite = jnp.logical_and(jnp.all(jnp.isfinite(x)), jnp.all(jnp.isfinite(r)))
-        stale = jnp.logical_and(reuse_jacobian, ~need)
-        # Hairer-Wanner: the remaining error is about theta/(1-theta) |dx|. With a stale
-        # Jacobian a single ratio of increments can grossly underestimate the rate, so there
-        # the larger of the last two ratios is used (and at least two are required).
-        have_two = jnp.logical_and(c.k >= 2, ~c.refresh)
-        theta_est = jnp.where(stale, jnp.maximum(theta, c.theta_prev), theta)
-        rate_ok = jnp.logical_and(~first, jnp.logical_or(~stale, have_two))
-        kappa = jnp.where(stale, KAPPA_STALE, 1.0)
-        converged = jnp.logical_or(
-            nrm <= 1.0,
-            jnp.logical_and(rate_ok, jnp.logical_and(theta_est < 0.5, theta_est / (1.0 - theta_est) * nrm <= kappa)),
-        )
-        slow = jnp.logical_and(~first, theta >= THETA_STAGNATION)
-        # With a stale Jacobian, slow contraction only asks for a fresh one.
-        refresh = jnp.logical_and(stale, jnp.logical_and(~first, theta >= THETA_REFRESH))
-        roundoff = jnp.logical_and(slow, jnp.logical_and(~stale, nrm <= STAGNATION_LEVEL))
-        diverged = jnp.logical_and(~stale, jnp.logical_and(~first, theta >= THETA_DIVERGED))
-        diverged = jnp.logical_and(diverged, ~roundoff)
-        k = c.k + 1
-        ok = jnp.logical_or(converged, roundoff)
-        out_of_iters = jnp.logical_and(k >= max_iterations, ~ok)
-        result = jnp.where(
-            ~finite,
-            Result.NONFINITE,
-            jnp.where(
-                ok,
-                Result.SUCCESSFUL,
-                jnp.where(diverged, Result.DIVERGED, jnp.where(out_of_iters, Result.MAX_ITERATIONS, -1)),
-            ),
-        ).astype(jnp.int32)
-        done = result >= 0
-        return _Carry(
-            x=jnp.where(finite, x, c.x),
-            k=k,
-            nrm_prev=nrm,
-            theta_prev=jnp.where(need, 1.0, theta),
-            done=done,
-            result=result,
-            res_norm=jnp.max(jnp.abs(r)),
-            cache=cache,
-            fresh=fresh,
-            refresh=refresh,
-            n_jac=c.n_jac + need.astype(jnp.int32),
-        )
-
-    init = _Carry(
+    return NewtonState(
         x=x0,
         k=jnp.asarray(0, jnp.int32),
         nrm_prev=jnp.asarray(0.0, dtype),
         theta_prev=jnp.asarray(1.0, dtype),
-        done=jnp.asarray(False),
         result=jnp.asarray(-1, jnp.int32),
         res_norm=jnp.asarray(jnp.inf, dtype),
         cache=cache,
-        fresh=jnp.asarray(False),
-        refresh=jnp.asarray(False),
+        refresh=jnp.logical_not(cache.valid),
+        stale=jnp.asarray(False),
         n_jac=jnp.asarray(0, jnp.int32),
     )
-    out = jax.lax.while_loop(lambda c: ~c.done, body, init)
-    # A failed solve leaves no reusable Jacobian behind.
+
+
+# -- stopping rules -------------------------------------------------------------------------
+def converged(nrm, theta_est, rate_known, stale):
+    """Increment below the tolerance, or the Hairer-Wanner estimate ``θ/(1-θ)·|Δx|`` of the
+    remaining error is (10x stricter with a reused Jacobian, whose rate estimate is rougher)."""
+    kappa = jnp.where(stale, KAPPA_STALE, 1.0)
+    rate_test = jnp.logical_and(rate_known, jnp.logical_and(theta_est < 0.5, theta_est / (1.0 - theta_est) * nrm <= kappa))
+    return jnp.logical_or(nrm <= 1.0, rate_test)
+
+
+def stagnated_at_roundoff(theta, nrm, first):
+    """The iteration no longer contracts, but the increment is already within
+    STAGNATION_LEVEL·tol: the iterates are dominated by round-off."""
+    return jnp.logical_and(~first, jnp.logical_and(theta >= THETA_STAGNATION, nrm <= STAGNATION_LEVEL))
+
+
+def diverged(theta, first, stale):
+    """A fresh Jacobian makes the increments grow: the step is too large."""
+    return jnp.logical_and(jnp.logical_and(~first, ~stale), theta >= THETA_DIVERGED)
+
+
+def needs_refresh(theta, nrm, k, first, stale):
+    """A reused Jacobian contracts too slowly while the increment is still above the round-off
+    level: evaluate a fresh one at the current iterate. (Near round-off the ratio of increments
+    is noise, and refreshing there would cost a Jacobian for nothing.)"""
+    slow = jnp.logical_or(theta >= THETA_REFRESH, k >= REFRESH_ITERATIONS)
+    return jnp.logical_and(jnp.logical_and(stale, ~first), jnp.logical_and(slow, nrm > STAGNATION_LEVEL))
+
+
+# -- one iteration ----------------------------------------------------------------------------
+def fresh_jacobian(jac_fn, params, x) -> JacobianCache:
+    """Evaluate the Jacobian at x and invert it."""
+    _, jac = jac_fn(x, params)
+    return JacobianCache(inverse(jac), jnp.asarray(True))
+
+
+def inverse(a):
+    """``a⁻¹`` from an LU factorisation with partial pivoting, ``P a = L U``, as
+    ``U⁻¹ (L⁻¹ P)``: two triangular solves with many right-hand sides, which on CPU cost a
+    fraction of ``jnp.linalg.inv`` for the small matrices of the stage system."""
+    lu, _, perm = jax.lax.linalg.lu(a)
+    p = jnp.eye(a.shape[0], dtype=a.dtype)[perm]
+    lower = jax.lax.linalg.triangular_solve(lu, p, left_side=True, lower=True, unit_diagonal=True)
+    return jax.lax.linalg.triangular_solve(lu, lower, left_side=True, lower=False)
+
+
+def _increment(fn, params, x, inverse):
+    """``x ← x - J⁻¹ fn(x)``: returns the new iterate, the increment and the residual."""
+    r = fn(x, params)
+    dx = inverse @ r
+    return x - dx, dx, r
+
+
+def _scaled_norm(dx, x, tol):
+    """``max_i |Δx_i| / (tol (1 + |x_i|))`` (NaN if anything is NaN)."""
+    return jnp.max(jnp.abs(dx) / (tol * (1.0 + jnp.abs(x))))
+
+
+def _judge(st: NewtonState, x, dx, r, options: NewtonOptions) -> NewtonState:
+    """The stopping rules after the iteration ``st.x -> x`` (increment dx, residual r at st.x)."""
+    nrm = _scaled_norm(dx, x, options.tol)
+    res_norm = jnp.max(jnp.abs(r))
+    first = st.k == 0
+    theta = jnp.where(first, 0.0, nrm / jnp.where(st.nrm_prev > 0, st.nrm_prev, 1.0))
+    stale = ~st.refresh
+    # With a stale Jacobian one ratio of increments can grossly underestimate the rate: use the
+    # larger of the last two, and require two.
+    rate_known = jnp.logical_and(~first, jnp.logical_or(~stale, jnp.logical_and(st.k >= 2, st.stale)))
+    theta_est = jnp.where(stale, jnp.maximum(theta, st.theta_prev), theta)
+    finite = jnp.logical_and(jnp.isfinite(nrm), jnp.isfinite(res_norm))
+    ok = jnp.logical_or(converged(nrm, theta_est, rate_known, stale), stagnated_at_roundoff(theta, nrm, first))
+    k = st.k + 1
+    result = jnp.select(
+        [~finite, ok, diverged(theta, first, stale), k >= options.max_iterations],
+        [Result.NONFINITE, Result.SUCCESSFUL, Result.DIVERGED, Result.MAX_ITERATIONS],
+        -1,
+    ).astype(jnp.int32)
+    refresh = jnp.logical_or(needs_refresh(theta, nrm, k, first, stale), not options.reuse_jacobian)
+    return st._replace(
+        x=jnp.where(finite, x, st.x),
+        k=k,
+        nrm_prev=nrm,
+        theta_prev=jnp.where(stale, theta, 1.0),
+        result=result,
+        res_norm=res_norm,
+        refresh=jnp.logical_and(refresh, result < 0),
+        stale=stale,
+    )
+
+
+def newton_step(fn, params, st: NewtonState, options: NewtonOptions) -> NewtonState:
+    """One iteration with the Jacobian in ``st.cache``: residual, increment, stopping rules.
+
+    ``st.refresh`` says that the cache was evaluated at this iterate (a Newton step proper);
+    otherwise the Jacobian is from an earlier iterate or step (``stale``).
+    """
+    x, dx, r = _increment(fn, params, st.x, st.cache.inverse)
+    return _judge(st, x, dx, r, options)
+
+
+def fast_start(fn, params, st: NewtonState, options: NewtonOptions) -> NewtonState:
+    """FAST_ITERATIONS iterations with the reused Jacobian, judged once at the end.
+
+    On CPU the bookkeeping of an iteration (norms, rates, tests; a dozen tiny kernels) costs
+    more than the iteration itself, and a step with a good reused Jacobian and predictor
+    converges in about three iterations; so the first ones run back to back (one compiled
+    copy of the residual, in a loop). Iterating past convergence only moves x by round-off.
+    The rates that the stopping rules need come from the increments of the last iterations.
+    """
+    k = min(FAST_ITERATIONS, options.max_iterations)
+
+    def plain(_, carry):
+        x, nrm, _prev = carry
+        x, dx, _ = _increment(fn, params, x, st.cache.inverse)
+        return x, _scaled_norm(dx, x, options.tol), nrm
+
+    one = jnp.asarray(1.0, st.x.dtype)
+    x, nrm, prev = jax.lax.fori_loop(0, k - 1, plain, (st.x, one, one))
+    x_new, dx, r = _increment(fn, params, x, st.cache.inverse)
+    before = st._replace(
+        x=x, k=jnp.asarray(k - 1, jnp.int32), nrm_prev=nrm if k >= 2 else st.nrm_prev,
+        theta_prev=nrm / jnp.where(prev > 0, prev, 1.0) if k >= 3 else one,
+        refresh=jnp.asarray(False), stale=jnp.asarray(k >= 2),
+    )
+    return _judge(before, x_new, dx, r, options)
+
+
+def newton_done(st: NewtonState):
+    return st.result >= 0
+
+
+def newton_solve(
+    fn: Callable[[jax.Array, Any], jax.Array],
+    jac_fn: Callable[[jax.Array, Any], tuple[jax.Array, jax.Array]],
+    x0: jax.Array,
+    params: Any,
+    cache: JacobianCache,
+    options: NewtonOptions,
+) -> tuple[jax.Array, NewtonInfo, JacobianCache]:
+    """Solve ``fn(x, params) = 0`` from ``x0``; ``jac_fn(x, params) -> (fn(x), ∂fn/∂x)``.
+
+    Returns the iterate, a :class:`NewtonInfo` and the Jacobian cache to hand to the next
+    solve (marked invalid after a failure, so that the next solve starts fresh).
+    """
+    def iterate(st):
+        return newton_step(fn, params, st, options)
+
+    def epoch(st):
+        # A fresh Jacobian at the current iterate when asked (at most once per epoch), then
+        # iterations until the solve ends or the contraction asks for another refresh.
+        cache = jax.lax.cond(st.refresh, lambda x: fresh_jacobian(jac_fn, params, x), lambda x: st.cache, st.x)
+        st = st._replace(cache=cache, n_jac=st.n_jac + st.refresh.astype(jnp.int32))
+        st = iterate(st)
+        return jax.lax.while_loop(lambda s: ~newton_done(s) & ~s.refresh, iterate, st)
+
+    st = newton_init(x0, cache)
+    if options.reuse_jacobian:
+        st = jax.tree_util.tree_map(functools.partial(jnp.where, cache.valid), fast_start(fn, params, st, options), st)
+    out = jax.lax.while_loop(lambda st: ~newton_done(st), epoch, st)
     ok = out.result == Result.SUCCESSFUL
     cache = out.cache._replace(valid=jnp.logical_and(out.cache.valid, ok))
-    info = NewtonInfo(out.result, out.k, out.res_norm, out.n_jac)
-    return out.x, info, cache
+    return out.x, NewtonInfo(out.result, out.k, out.res_norm, out.n_jac), cache

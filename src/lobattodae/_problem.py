@@ -178,11 +178,6 @@ def hidden_constraint(problem, t, q, p, lam, args=None):
     return dphi
 
 
-def constraint_lambda_jacobian(problem, t, q, p, lam, args=None):
-    """``D_p φ · D_λ g`` (m×m) at ``(t, q, p, λ)``; invertible for an index-2 problem."""
-    return jax.jacfwd(lambda ll: hidden_constraint(problem, t, q, p, ll, args))(lam)
-
-
 def _hidden_constraint_and_jacobian(problem, t, q, p, lam, args):
     """The hidden-constraint residual and its λ-Jacobian ``D_pφ·D_λg`` in one forward pass."""
 

@@ -1,14 +1,20 @@
-"""``solve``: integrate a partitioned index-2 DAE over an interval with a constant step."""
+"""``solve``: integrate a partitioned index-2 DAE over an interval and return a :class:`Solution`.
+
+The order of work: validate every option (paths included) → validate the problem and the
+initial values → the loop :class:`~lobattodae._loop.State` → compiled chunks of the loop
+(progress, Ctrl-C, checkpoints, recovery of failed steps) → :class:`Solution`.
+"""
 
 from __future__ import annotations
 
-import functools
-import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Callable, NamedTuple
 
@@ -16,121 +22,35 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _checkpoint
 from ._errors import LobattoDAEInputError, NewtonFailure
-from ._initial import check_float64, lambda_newton_update, validate_and_residual
-from ._problem import consistent_lambda
+from ._loop import CHUNK, ConstantStepSize, Record, State, init_compiled, run_compiled
 from ._results import Result
-from ._stepper import LobattoIIIAIIIB, StepperState
+from ._stepper import LobattoIIIAIIIB
+from ._validate import check_float64, validate_and_residual
 
-__all__ = ["Solution", "solve", "integrate"]
+__all__ = ["Solution", "solve", "STATS"]
 
-#: Longest compiled chunk of steps; longer runs loop over chunks (one compile per chunk
-#: length, a power of two, so a convergence study compiles only a handful of times).
-MAX_CHUNK = 4096
-_MIN_CHUNK = 16
-#: Status code of a step that was not taken (past the end, or after a failure).
-_SKIPPED = -1
-#: A RuntimeWarning is issued when ‖λ_k − λ(q_k, p_k)‖∞ grows DRIFT_GROWTH-fold over its level
-#: in the first steps and exceeds DRIFT_FLOOR·(1 + max|λ|).
-DRIFT_GROWTH = 1e3
-DRIFT_FLOOR = 1e-6
+#: The keys of ``Solution.stats`` (the one place they are documented).
+STATS = {
+    "newton_iterations": "(N,) Newton iterations of each step",
+    "residual_norm": "(N,) max-norm of the last Newton residual of each step",
+    "constraint_residual": "(N+1,) ‖φ(t_k, q_k, p_k)‖∞",
+    "multiplier_drift": "(N+1,) ‖λ_k − λ(t_k, q_k, p_k)‖∞, the distance of λ from the hidden constraint",
+    "lam_resync": "(N,) bool: the step started from λ(t_k, q_k, p_k) (lam_start='auto' re-synchronised λ)",
+    "lam_resets": "number of re-synchronisations of λ (lam_start='auto')",
+    "lam_excursions": "steps where the drift left its normal band (re-synchronised with 'auto', only counted otherwise)",
+    "n_jacobians": "Newton Jacobian evaluations (each with one factorisation)",
+    "n_newton": "Newton iterations in all",
+    "h": "the step size",
+    "n_steps": "the number of steps asked for",
+    "failed_step": "index of the failed step, or None",
+    "recoveries": "failed steps retried as substeps (max_recoveries)",
+    "compile_and_run_time": "wall time of the integration loop, compilation included (s)",
+}
 
-
-class _Carry(NamedTuple):
-    q: jax.Array
-    p: jax.Array
-    lam: jax.Array  # Λ_1 of the next step: λ_k, or λ(t_k, q_k, p_k) for lam_start="consistent"
-    state: StepperState
-    failed: jax.Array
-
-
-class _StepOut(NamedTuple):
-    q: jax.Array
-    p: jax.Array
-    lam: jax.Array
-    result: jax.Array
-    iterations: jax.Array
-    residual_norm: jax.Array
-    n_jacobians: jax.Array
-    constraint: jax.Array
-    drift: jax.Array
-
-
-def _scan_steps(problem, method: LobattoIIIAIIIB, length: int, k0, n_total, t0, h, carry: _Carry, args):
-    """``length`` steps with ``lax.scan``.
-
-    Steps with index ≥ n_total (padding of the last chunk), or after a failed step, are
-    computed but discarded (status ``_SKIPPED``): a branch-free loop body is much faster on CPU
-    than a ``lax.cond`` around the step, and padding only ever occurs in the last chunk.
-    """
-
-    def body(c: _Carry, j):
-        k = (k0 + j).astype(t0.dtype)
-        active = jnp.logical_and(k0 + j < n_total, ~c.failed)
-        t = t0 + k * h
-        q1, p1, lam1, info, st = method.step_from(problem, t, c.q, c.p, c.lam, h, args, c.state)
-        cons = jnp.max(jnp.abs(problem.phi(t + h, q1, p1, args)))
-        # distance of λ_{k+1} from the hidden constraint at (q_{k+1}, p_{k+1}): an estimate
-        # of the error in λ, and the symptom of the undamped λ mode of the paper's scheme.
-        # With lam_start="consistent", λ(q_{k+1}, p_{k+1}) is the next step's Λ_1.
-        lam_c = consistent_lambda(problem, t + h, q1, p1, lam1, args, iterations=1)
-        drift = jnp.max(jnp.abs(lam1 - lam_c))
-        lam_next = lam_c if method.lam_start == "consistent" else lam1
-        ok = info.result == Result.SUCCESSFUL
-        accept = jnp.logical_and(active, ok)
-        new = _Carry(
-            jnp.where(accept, q1, c.q),
-            jnp.where(accept, p1, c.p),
-            jnp.where(accept, lam_next, c.lam),
-            jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), st, c.state),
-            jnp.logical_or(c.failed, jnp.logical_and(active, ~ok)),
-        )
-        code = jnp.where(active, info.result, _SKIPPED).astype(jnp.int32)
-        out = _StepOut(q1, p1, lam1, code, info.iterations, info.residual_norm, info.n_jacobians, cons, drift)
-        return new, out
-
-    return jax.lax.scan(body, carry, jnp.arange(length))
-
-
-@functools.partial(jax.jit, static_argnames=("problem", "method", "length"))
-def _run_chunk(problem, method, length, k0, n_total, t0, h, carry, args):
-    return _scan_steps(problem, method, length, k0, n_total, t0, h, carry, args)
-
-
-def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam0, args=None):
-    """Pure, jit/vmap-able integration of ``n_steps`` steps of size ``h`` (no input checks).
-
-    The building block of :func:`solve` for batched use: ``jax.vmap(integrate, ...)`` over
-    initial values or ``args``. The initial values must be consistent (see
-    :func:`consistent_lambda`); nothing is validated here.
-
-    Returns
-    -------
-    q, p, lam : jax.Array
-        Time-major, shapes ``(n_steps + 1, n)``, ``(n_steps + 1, n)``, ``(n_steps + 1, m)``.
-        After a failed step the remaining rows are NaN.
-    status : jax.Array
-        ``Result`` code of the integration (0 on success, else the first failure's code).
-    """
-    q0 = jnp.asarray(q0, jnp.float64)
-    p0 = jnp.asarray(p0, jnp.float64)
-    lam0 = jnp.asarray(lam0, jnp.float64)
-    t0 = jnp.asarray(t0, jnp.float64)
-    h = jnp.asarray(h, jnp.float64)
-    # the loop carries Λ_1 of the next step (see _Carry); with lam_start="consistent" the first
-    # one comes from the hidden constraint, as in LobattoIIIAIIIB.step
-    lam_start = lam0
-    if method.lam_start == "consistent":
-        lam_start = consistent_lambda(problem, t0, q0, p0, lam0, args, iterations=1)
-    carry = _Carry(q0, p0, lam_start, method.init(q0, p0, lam0), jnp.asarray(False))
-    _, out = _scan_steps(problem, method, n_steps, jnp.asarray(0), n_steps, t0, h, carry, args)
-    codes = out.result
-    failed = codes > 0
-    status = jnp.where(jnp.any(failed), codes[jnp.argmax(failed)], 0)
-    q = jnp.concatenate([q0[None], out.q])
-    p = jnp.concatenate([p0[None], out.p])
-    lam = jnp.concatenate([lam0[None], out.lam])
-    return q, p, lam, status
+#: Automatic recovery retries a failed step as 2, 4, 8, 16 substeps (one compiled chunk of 16).
+_RECOVERY_HALVINGS = 4
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,10 +68,7 @@ class Solution:
         ``Result.SUCCESSFUL`` or the reason the integration stopped early.
     message : str
     stats : dict
-        ``newton_iterations (N,)``, ``residual_norm (N,)`` (max-norm of the last Newton
-        residual), ``constraint_residual (N+1,)`` (‖φ(t_k, q_k, p_k)‖∞), ``n_jacobians``
-        (total), ``h``, ``n_steps``, ``failed_step`` (or None), ``compile_and_run_time``.
-        When the solve stopped early the arrays hold the computed prefix only.
+        See :data:`STATS`. When the solve stopped early the arrays hold the computed prefix.
     problem, method, args
         What was solved, for diagnostics.
     """
@@ -176,6 +93,59 @@ class Solution:
         )
 
 
+# -- options ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Options:
+    """Every option of :func:`solve`, checked before any work is done."""
+
+    t0: float
+    t1: float
+    n: int
+    h: float
+    chunk: int
+    max_recoveries: int
+    checkpoint: str | None
+    checkpoint_every: int | None
+    resume: bool
+
+    @classmethod
+    def check(cls, method, t_span, n_steps, dt, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume):
+        if not isinstance(method, LobattoIIIAIIIB):
+            raise TypeError(
+                f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3); got {method!r}."
+            )
+        t0, t1 = _check_t_span(t_span)
+        n, h = _step_count(t0, t1, n_steps, dt)
+        if chunk_size is not None and (isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1):
+            raise LobattoDAEInputError(f"chunk_size must be a positive integer; got {chunk_size!r}.")
+        if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
+            raise LobattoDAEInputError(f"max_recoveries must be a non-negative integer; got {max_recoveries!r}.")
+        if checkpoint_every is not None and (
+            isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int) or checkpoint_every < 1
+        ):
+            raise LobattoDAEInputError(f"checkpoint_every must be a positive integer; got {checkpoint_every!r}.")
+        if resume and checkpoint is None:
+            raise LobattoDAEInputError("resume=True needs the checkpoint file to resume from (checkpoint=PATH).")
+        path = None
+        if checkpoint is not None:
+            path = os.fspath(checkpoint)
+            check_writable(path, "checkpoint")
+        return cls(t0, t1, n, h, chunk_size or CHUNK, max_recoveries, path, checkpoint_every, bool(resume))
+
+
+def check_writable(path: str, what: str) -> None:
+    """Refuse up front a file that could not be written after the work (missing directory)."""
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        raise LobattoDAEInputError(
+            f"cannot write the {what} '{path}': the directory '{directory}' does not exist; create it first."
+        )
+    if not os.access(directory, os.W_OK):
+        raise LobattoDAEInputError(f"cannot write the {what} '{path}': the directory '{directory}' is not writable.")
+    if os.path.isdir(path):
+        raise LobattoDAEInputError(f"cannot write the {what} '{path}': it is a directory.")
+
+
 def _step_count(t0: float, t1: float, n_steps, dt) -> tuple[int, float]:
     if (n_steps is None) == (dt is None):
         raise LobattoDAEInputError("give exactly one of n_steps (number of steps) or dt (step size).")
@@ -187,6 +157,8 @@ def _step_count(t0: float, t1: float, n_steps, dt) -> tuple[int, float]:
             raise LobattoDAEInputError(f"n_steps must be a positive integer; got n_steps={n_steps}.")
         n = int(n_steps)
     else:
+        if isinstance(dt, (bool, str)) or not isinstance(dt, (int, float, np.integer, np.floating)):
+            raise LobattoDAEInputError(f"dt must be a positive finite number; got {dt!r}.")
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0):
             raise LobattoDAEInputError(f"dt must be a positive finite step size; got dt={dt!r}.")
@@ -209,12 +181,15 @@ def _check_t_span(t_span) -> tuple[float, float]:
     return t0, t1
 
 
-def _chunk_length(n: int, chunk_size: int | None) -> int:
-    if chunk_size is not None:
-        if not (isinstance(chunk_size, int) and chunk_size >= 1):
-            raise LobattoDAEInputError(f"chunk_size must be a positive integer; got {chunk_size!r}.")
-        return chunk_size
-    return min(MAX_CHUNK, max(_MIN_CHUNK, 1 << (n - 1).bit_length()))
+# -- the run ------------------------------------------------------------------------------------
+class _Progress(NamedTuple):
+    """How far a run got: replaced as a whole (one assignment), so that an interrupt can never
+    see a step count that does not belong to the state and the rows."""
+
+    done: int
+    state: State
+    rows: tuple  # of Record chunks (NumPy)
+    recoveries: int
 
 
 def solve(
@@ -242,6 +217,9 @@ def solve(
     Parameters
     ----------
     problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+        Reuse one problem object and pass parameters through ``args``: the compiled loop is
+        cached per problem object, method and shapes, so new numbers (initial values,
+        ``t_span``, ``n_steps``, ``args`` values) do not recompile.
     method : LobattoIIIAIIIB
     t_span : (float, float)
         ``(t0, t1)`` with ``t1 > t0``.
@@ -262,262 +240,196 @@ def solve(
         Replace ``p0`` by its least-squares projection onto the constraint
         {p : φ(t0, q0, p) = 0} (always, to round-off) instead of rejecting inconsistent values.
     chunk_size : int, optional
-        Steps per compiled chunk (default: the next power of two ≥ n_steps, at most 4096).
+        Steps per compiled chunk (default :data:`~lobattodae._loop.CHUNK`); progress, Ctrl-C
+        and checkpoints act between chunks.
     progress : bool or callable
-        ``True`` prints a progress bar to stderr; a callable is called as
-        ``progress(steps_done, n_steps)`` after each chunk. Ctrl-C between chunks returns the
-        computed prefix with status ``INTERRUPTED``.
+        ``True`` shows a progress bar on stderr once the run has taken more than a second; a
+        callable is called as ``progress(steps_done, n_steps)`` after each chunk. Ctrl-C
+        returns the computed prefix with status ``INTERRUPTED`` at the end of the chunk (a
+        second Ctrl-C stops at once).
     max_recoveries : int
         Automatic recovery (off by default): a step whose Newton iteration fails is retried as
         2, 4, 8 or 16 substeps, at most this many times per solve; ``stats["recoveries"]``
-        counts them. The recovered step restarts the Jacobian cache and the predictor.
+        counts them. The recovered step restarts the Jacobian and the predictor.
     checkpoint : path, optional
-        Write the computed prefix and the loop state to this ``.npz`` file every
-        ``checkpoint_every`` steps (at chunk boundaries), at the end, and on Ctrl-C.
+        Write the computed prefix and the loop state to this file (format:
+        :mod:`lobattodae._checkpoint`) every ``checkpoint_every`` steps (at chunk boundaries),
+        at the end, and on Ctrl-C. Its directory must exist.
     checkpoint_every : int, optional
     resume : bool
-        Continue from ``checkpoint`` if it exists (it must come from the same problem set-up:
-        method, t_span, step and initial values are checked). A resumed run gives the same
-        numbers, bit for bit, as an uninterrupted one.
+        Continue from ``checkpoint`` if it exists. It must come from the same run: problem
+        functions, method, ``args``, ``t_span``, step and initial values are checked. A resumed
+        run gives the same numbers, bit for bit, as an uninterrupted one.
 
     Returns
     -------
     Solution
     """
     check_float64()
-    if not isinstance(method, LobattoIIIAIIIB):
-        raise TypeError(
-            f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3); got {method!r}."
-        )
-    t0, t1 = _check_t_span(t_span)
-    n, h = _step_count(t0, t1, n_steps, dt)
-    q0, p0, lam0, phi0 = validate_and_residual(problem, t0, q0, p0, lam0, args, project=project_initial)
-    length = _chunk_length(n, chunk_size)
+    opt = _Options.check(method, t_span, n_steps, dt, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume)
+    q0, p0, lam0, phi0 = validate_and_residual(problem, opt.t0, q0, p0, lam0, args, project=project_initial)
     report = _progress_reporter(progress)
-
-    q0j, p0j, lam0j = jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0)
-    # The loop carries Λ_1 of the next step (see _Carry). With lam_start="consistent" the first
-    # one is λ(t0, q0, p0): a computed λ0 already is; a given one is only checked to a tolerance.
-    lam_start = lam0j
-    if method.lam_start == "consistent":
-        lam_start = jnp.asarray(lambda_newton_update(problem, t0, q0, p0, lam0, args))
-    carry = _Carry(q0j, p0j, lam_start, method.init(q0j, p0j, lam0j), jnp.asarray(False))
-    meta = _checkpoint_meta(method, t0, t1, n, h, length, q0, p0, lam0)
-    accepted: list[_StepOut] = []
-    done, recoveries = 0, 0
-    if checkpoint is not None and resume and os.path.exists(checkpoint):
-        done, recoveries, accepted, carry = _load_checkpoint(checkpoint, meta, carry)
-    elif resume and checkpoint is None:
-        raise LobattoDAEInputError("resume=True needs the checkpoint file to resume from (checkpoint=PATH).")
-    if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
-        raise LobattoDAEInputError(f"max_recoveries must be a non-negative integer; got {max_recoveries!r}.")
-    if checkpoint_every is not None and (not isinstance(checkpoint_every, int) or checkpoint_every < 1):
-        raise LobattoDAEInputError(f"checkpoint_every must be a positive integer; got {checkpoint_every!r}.")
-    interrupted = False
-    failure: tuple[int, int, _StepOut] | None = None
-    start = time.perf_counter()
-    t0j, hj = jnp.asarray(t0), jnp.asarray(h)
-    last_saved = done
-    try:
-        while done < n:
-            new_carry, out = _run_chunk(problem, method, length, jnp.asarray(done), n, t0j, hj, carry, args)
-            out = jax.tree_util.tree_map(np.asarray, out)
-            bad = np.flatnonzero(out.result > 0)
-            n_good = int(bad[0]) if bad.size else int(np.count_nonzero(out.result == Result.SUCCESSFUL))
-            accepted.append(_rows(out, 0, n_good))
-            done += n_good
-            carry = new_carry._replace(failed=jnp.asarray(False))
-            if bad.size:
-                row = _rows(out, n_good, n_good + 1)
-                rec = None
-                if recoveries < max_recoveries:
-                    rec = _recover_step(problem, method, args, t0 + done * h, h, carry)
-                if rec is None:
-                    failure = (done, int(out.result[n_good]), row)
-                    break
-                carry, rec_row = rec
-                accepted.append(rec_row)
-                done += 1
-                recoveries += 1
-            elif n_good == 0:  # pragma: no cover - cannot happen: a chunk either advances or fails
-                raise RuntimeError("internal error: a chunk made no progress")
-            if report is not None:
-                report(done, n)
-            if checkpoint is not None and checkpoint_every is not None and done - last_saved >= checkpoint_every:
-                _save_checkpoint(checkpoint, meta, done, recoveries, accepted, carry)
-                last_saved = done
-    except KeyboardInterrupt:
-        interrupted = True
-    if checkpoint is not None and (interrupted or done > last_saved):
-        _save_checkpoint(checkpoint, meta, done, recoveries, accepted, carry)
-    elapsed = time.perf_counter() - start
-    return _assemble(
-        problem, method, args, t0, t1, h, n, q0, p0, lam0, phi0, accepted, failure, interrupted, throw, elapsed,
-        recoveries,
+    controller = ConstantStepSize()
+    f64 = jnp.float64
+    state = init_compiled(
+        problem, method, controller, jnp.asarray(opt.t0, f64), jnp.asarray(opt.t1, f64), opt.n,
+        jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0), args,
     )
+    run = _Progress(0, state, (), 0)
+    meta = _run_identity(problem, method, args, opt, q0, p0, lam0) if opt.checkpoint else None
+    if opt.checkpoint and opt.resume and _checkpoint.exists(opt.checkpoint):
+        run = _resume(opt.checkpoint, meta, state)
+    failure: tuple[int, Result, int] | None = None  # (step, code, Jacobians of the failed try)
+    start = time.perf_counter()
+    last_saved = run.done
+    with _deferred_interrupts() as interrupted:
+        try:
+            while run.done < opt.n and not interrupted():
+                state, rec, count = run_compiled(problem, method, controller, run.state, args, opt.chunk)
+                count = int(count)
+                rows = run.rows + (_numpy_rows(rec, count),) if count else run.rows
+                if int(state.result) != Result.SUCCESSFUL:
+                    rec_row = None
+                    if run.recoveries < opt.max_recoveries:
+                        rec_row = _recover_step(problem, method, args, state)
+                    if rec_row is None:
+                        run = _Progress(run.done + count, state, rows, run.recoveries)
+                        failure = (run.done, Result(int(state.result)), 0)
+                        break
+                    state, row = rec_row
+                    rows, count = rows + (row,), count + 1
+                    run = _Progress(run.done + count, state, rows, run.recoveries + 1)
+                else:
+                    run = _Progress(run.done + count, state, rows, run.recoveries)
+                if report is not None:
+                    report(run.done, opt.n)
+                if opt.checkpoint and opt.checkpoint_every and run.done - last_saved >= opt.checkpoint_every:
+                    _save(opt.checkpoint, meta, run)
+                    last_saved = run.done
+        except KeyboardInterrupt:  # a second Ctrl-C, or one outside the main thread's handler
+            pass
+        was_interrupted = run.done < opt.n and failure is None
+    if opt.checkpoint and (run.done > last_saved or was_interrupted):
+        _save(opt.checkpoint, meta, run)
+    elapsed = time.perf_counter() - start
+    return _assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failure, throw, elapsed)
 
 
-def _rows(out: _StepOut, i: int, j: int) -> _StepOut:
-    return _StepOut(*(x[i:j] for x in out))
+def _numpy_rows(rec: Record, count: int) -> Record:
+    return Record(*(np.asarray(x)[:count] for x in rec))
 
 
-#: Automatic recovery retries a failed step as 2, 4, 8, 16 substeps (one compiled chunk of 16).
-_RECOVERY_HALVINGS = 4
+def _recover_step(problem, method, args, state: State):
+    """Retry the failed step of ``state`` as 2^j substeps; return ``(state, row)`` or None.
 
-
-def _recover_step(problem, method, args, t_start, h, carry: _Carry):
-    """Retry one failed step of size h as 2^j substeps; return (carry, one output row) or None.
-
-    The Jacobian cache and the predictor are reset (they belong to the step size h); the
-    step's statistics are the sums over the substeps.
+    The substeps start afresh (no reused Jacobian, no predictor history: those belong to the
+    step size h), and so does the step after the recovered one. The row's statistics are the
+    sums over the substeps.
     """
-    length = 1 << _RECOVERY_HALVINGS
+    controller = ConstantStepSize()
+    ctrl = state.controller
+    t_start, h = controller.proposal(ctrl)
     for j in range(1, _RECOVERY_HALVINGS + 1):
-        m = 1 << j
-        fresh = _Carry(carry.q, carry.p, carry.lam, method.init(carry.q, carry.p, carry.lam), jnp.asarray(False))
-        sub_carry, out = _run_chunk(
-            problem, method, length, jnp.asarray(0), m, jnp.asarray(t_start), jnp.asarray(h / m), fresh, args
+        sub = init_compiled(problem, method, controller, t_start, t_start + h, 1 << j, state.q, state.p, state.lam, args)
+        sub, rec, count = run_compiled(problem, method, controller, sub, args, 1 << _RECOVERY_HALVINGS)
+        if int(sub.result) != Result.SUCCESSFUL or int(count) != 1 << j:
+            continue
+        rows = _numpy_rows(rec, int(count))
+        row = rows._replace(
+            **{f: getattr(rows, f)[-1:] for f in ("t", "q", "p", "lam", "constraint", "drift")},
+            iterations=np.asarray([rows.iterations.sum()], np.int32),
+            n_jacobians=np.asarray([rows.n_jacobians.sum()], np.int32),
+            residual_norm=np.asarray([rows.residual_norm.max()]),
+            resync=np.asarray([rows.resync.any()]),
         )
-        out = jax.tree_util.tree_map(np.asarray, out)
-        if np.all(out.result[:m] == Result.SUCCESSFUL):
-            row = _StepOut(
-                out.q[m - 1 : m], out.p[m - 1 : m], out.lam[m - 1 : m], out.result[m - 1 : m],
-                np.asarray([out.iterations[:m].sum()], np.int32), np.asarray([out.residual_norm[:m].max()]),
-                np.asarray([out.n_jacobians[:m].sum()], np.int32), out.constraint[m - 1 : m], out.drift[m - 1 : m],
-            )
-            new = _Carry(
-                sub_carry.q, sub_carry.p, sub_carry.lam,
-                method.init(sub_carry.q, sub_carry.p, sub_carry.lam), jnp.asarray(False),
-            )
-            return new, row
+        ctrl = ctrl._replace(k=ctrl.k + 1)
+        t_next, h_next = controller.proposal(ctrl)
+        new = state._replace(
+            q=sub.q, p=sub.p, lam=sub.lam,
+            stepper=_init_stepper(problem, method, t_next, sub.q, sub.p, sub.lam, args, h_next),
+            controller=ctrl,
+            result=jnp.asarray(Result.SUCCESSFUL, jnp.int32),
+            n_accepted=state.n_accepted + 1,
+            n_newton=state.n_newton + sub.n_newton,
+            n_jacobians=state.n_jacobians + sub.n_jacobians,
+        )
+        return new, row
     return None
 
 
-def _checkpoint_meta(method, t0, t1, n, h, length, q0, p0, lam0) -> dict:
+_init_stepper = jax.jit(
+    lambda problem, method, t, q, p, lam, args, h: method.init(problem, t, q, p, lam, args, h),
+    static_argnums=(0, 1),
+)
+
+
+# -- checkpoints ----------------------------------------------------------------------------------
+def _run_identity(problem, method, args, opt: _Options, q0, p0, lam0) -> dict:
+    """What a checkpoint must match to be resumed: the problem's functions, the method, args,
+    the time grid and the initial values."""
     return {
-        "format": "lobattodae-checkpoint-1",
+        "problem": _checkpoint.fingerprint_callable(problem),
         "method": repr(method),
-        "t0": t0, "t1": t1, "n_steps": n, "h": h, "chunk": length,
-        "q0": np.asarray(q0).tolist(), "p0": np.asarray(p0).tolist(), "lam0": np.asarray(lam0).tolist(),
+        "args": _checkpoint.fingerprint_arrays(args) if args is not None else None,
+        "t_span": [opt.t0, opt.t1],
+        "n_steps": opt.n,
+        "h": opt.h,
+        "initial_values": _checkpoint.fingerprint_arrays(np.asarray(q0), np.asarray(p0), np.asarray(lam0)),
     }
 
 
-def _save_checkpoint(path, meta, done, recoveries, accepted, carry: _Carry) -> None:
-    """Write the computed prefix and the loop state atomically (temporary file + rename)."""
-    rows = _concat(accepted, carry)
-    leaves = jax.tree_util.tree_leaves(carry)
-    payload = {f"leaf_{i}": np.asarray(x) for i, x in enumerate(leaves)}
-    payload.update({f"out_{name}": np.asarray(x) for name, x in zip(_StepOut._fields, rows)})
-    tmp = f"{path}.tmp"
-    with open(tmp, "wb") as fh:
-        np.savez(fh, meta=json.dumps(meta), done=done, recoveries=recoveries, **payload)
-    os.replace(tmp, path)
-
-
-def _load_checkpoint(path, meta, template: _Carry):
-    with np.load(path, allow_pickle=False) as data:
-        saved = json.loads(str(data["meta"]))
-        if saved != meta:
-            diff = sorted(k for k in set(saved) | set(meta) if saved.get(k) != meta.get(k))
-            raise LobattoDAEInputError(
-                f"checkpoint {path!r} belongs to a different run (differs in: {', '.join(diff)}); "
-                "resume with the same problem, method, t_span, step and initial values, or delete it."
-            )
-        leaves, treedef = jax.tree_util.tree_flatten(template)
-        restored = [jnp.asarray(data[f"leaf_{i}"], dtype=leaf.dtype) for i, leaf in enumerate(leaves)]
-        carry = jax.tree_util.tree_unflatten(treedef, restored)
-        rows = _StepOut(*(data[f"out_{name}"] for name in _StepOut._fields))
-        return int(data["done"]), int(data["recoveries"]), [rows], carry
-
-
-def _concat(accepted: list[_StepOut], carry: _Carry) -> _StepOut:
-    if accepted:
-        return _StepOut(*(np.concatenate(xs) for xs in zip(*accepted)))
-    n, m = carry.q.shape[0], carry.lam.shape[0]
-    return _StepOut(
-        np.zeros((0, n)), np.zeros((0, n)), np.zeros((0, m)), np.zeros(0, np.int32), np.zeros(0, np.int32),
-        np.zeros(0), np.zeros(0, np.int32), np.zeros(0), np.zeros(0),
+def _save(path: str, meta: dict, run: _Progress) -> None:
+    rows = _concat(run.rows, run.state)
+    _checkpoint.save(
+        path, meta=meta, counters={"done": run.done, "recoveries": run.recoveries},
+        state=run.state, rows=rows._asdict(),
     )
 
 
-def _assemble(
-    problem, method, args, t0, t1, h, n, q0, p0, lam0, phi0, accepted, failure, interrupted, throw, elapsed,
-    recoveries,
-) -> Solution:
-    n_ok = sum(len(a.result) for a in accepted)
-    out = _concat(accepted, _Carry(jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0), None, None))
-    # Non-finite values reported as success would be a bug upstream; never let them through.
-    finite = (np.all(np.isfinite(out.q), axis=1) & np.all(np.isfinite(out.p), axis=1)
-              & np.all(np.isfinite(out.lam), axis=1))
-    failed_step, status = None, Result.SUCCESSFUL
-    if not np.all(finite):
-        n_ok = int(np.flatnonzero(~finite)[0])
-        failed_step, status = n_ok, Result.NONFINITE
-    elif failure is not None:
-        failed_step, status = failure[0], Result(failure[1])
-    elif n_ok < n:
-        status = Result.INTERRUPTED
-    out = _rows(out, 0, n_ok)
-    tk = t0 + np.arange(n_ok + 1) * h
-    if n_ok == n:
-        tk[-1] = t1
-    q = np.vstack([q0[None], out.q])
-    p = np.vstack([p0[None], out.p])
-    lam = np.vstack([lam0[None], out.lam])
-    drift = np.concatenate([[0.0], out.drift])
-    n_jac = int(np.sum(out.n_jacobians)) + (int(failure[2].n_jacobians[0]) if failure is not None else 0)
-    stats = {
-        "newton_iterations": out.iterations,
-        "residual_norm": out.residual_norm,
-        "constraint_residual": np.concatenate([[phi0], out.constraint]),
-        "n_jacobians": n_jac,
-        "h": h,
-        "n_steps": n,
-        "failed_step": failed_step,
-        "recoveries": recoveries,
-        "compile_and_run_time": elapsed,
-        "multiplier_drift": drift,
-    }
-    success = status == Result.SUCCESSFUL and n_ok == n
-    message = status.message
-    if failed_step is not None:
-        tf = t0 + failed_step * h
-        message = f"Step {failed_step} (t = {tf:.6g}, h = {h:.3g}) failed: {status.message}"
-        if throw:
-            raise NewtonFailure(message, step=failed_step, t=tf, reason=status.name.lower())
-    elif status == Result.INTERRUPTED:
-        message = f"Interrupted after {n_ok} of {n} steps (t = {tk[-1]:.6g}); the computed prefix is returned."
-    k = _drift_onset(drift, 1.0 + float(np.max(np.abs(lam)))) if method.lam_start == "previous" else None
-    if k is not None:
-        warnings.warn(
-            f"the multiplier λ_k drifts away from the hidden constraint: |λ_k − λ(q_k, p_k)| grows from "
-            f"{float(np.max(drift[: _early(len(drift))])):.1e} in the first steps to {float(np.max(drift)):.2e} "
-            f"(t = {tk[k]:.6g}). "
-            "With lam_start='previous' (the paper's scheme) λ errors are propagated with |R(∞)| = 1 and "
-            "can grow over long runs, and with them the errors in q and p. Use "
-            "LobattoIIIAIIIB(..., lam_start='consistent') or a smaller step.",
-            RuntimeWarning,
-            stacklevel=3,
+def _resume(path: str, meta: dict, template: State) -> _Progress:
+    counters, state, rows = _checkpoint.load(path, meta=meta, state_template=template, row_names=Record._fields)
+    done = int(counters.get("done", -1))
+    rec = Record(**rows)
+    if done < 0 or any(len(x) != done for x in rec) or int(state.n_accepted) != done:
+        raise _checkpoint.CheckpointError(
+            f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint (it holds {len(rec.t)} rows for "
+            f"{done} steps done); delete it or restart without resume."
         )
-    return Solution(tk, q, p, lam, bool(success), status, message, stats, problem, method, args)
+    return _Progress(done, state, (rec,), int(counters.get("recoveries", 0)))
 
 
-def _early(n: int) -> int:
-    return min(n, max(11, n // 20))
+def _concat(rows: tuple, state: State) -> Record:
+    if rows:
+        return Record(*(np.concatenate(xs) for xs in zip(*rows)))
+    n, m = state.q.shape[-1], state.lam.shape[-1]
+    return Record(
+        np.zeros(0), np.zeros((0, n)), np.zeros((0, n)), np.zeros((0, m)), np.zeros(0, np.int32),
+        np.zeros(0, np.int32), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, bool),
+    )
 
 
-def _drift_onset(drift: np.ndarray, lam_scale: float) -> int | None:
-    """Index where the multiplier drift has grown DRIFT_GROWTH-fold over its early level.
+# -- interrupts and progress ----------------------------------------------------------------------
+@contextmanager
+def _deferred_interrupts():
+    """Within the block, Ctrl-C (SIGINT) only sets a flag that the chunk loop checks, so an
+    interrupt never lands between updating the step count and the state; a second Ctrl-C
+    raises KeyboardInterrupt as usual. Outside the main thread nothing is changed."""
+    flag = {"set": False}
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    previous = signal.getsignal(signal.SIGINT)
 
-    A coarse step gives a large but steady λ error; the weak instability of the paper's scheme
-    shows as *growth*. Only growth to above DRIFT_FLOOR·(1 + max|λ|) is reported.
-    """
-    if drift.size <= 1:
-        return None
-    early = float(np.max(drift[: _early(len(drift))]))
-    limit = max(DRIFT_GROWTH * early, DRIFT_FLOOR * lam_scale)
-    above = np.flatnonzero(drift > limit)
-    return int(above[0]) if above.size else None
+    def handler(signum, frame):
+        if flag["set"]:
+            raise KeyboardInterrupt
+        flag["set"] = True
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: flag["set"]
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _progress_reporter(progress):
@@ -525,17 +437,95 @@ def _progress_reporter(progress):
         return None
     if callable(progress):
         return progress
-    start = time.perf_counter()
+    return _ProgressBar()
 
-    def bar(done: int, total: int) -> None:
-        width = 30
+
+class _ProgressBar:
+    """A progress bar on stderr that appears once a run has taken more than ``delay`` seconds."""
+
+    def __init__(self, delay: float = 1.0):
+        self.start = time.perf_counter()
+        self.delay = delay
+        self.shown = False
+
+    def __call__(self, done: int, total: int) -> None:
+        el = time.perf_counter() - self.start
+        if el < self.delay and not self.shown:
+            return
+        self.shown = True
         frac = done / total
-        fill = int(width * frac)
-        el = time.perf_counter() - start
         eta = el / frac * (1 - frac) if frac > 0 else float("nan")
-        sys.stderr.write(f"\r[{'#' * fill}{'.' * (width - fill)}] {done}/{total} steps  {el:6.1f}s  eta {eta:6.1f}s")
+        fill = int(30 * frac)
+        sys.stderr.write(f"\r[{'#' * fill}{'.' * (30 - fill)}] {done}/{total} steps  {el:6.1f}s  eta {eta:6.1f}s")
         if done >= total:
             sys.stderr.write("\n")
         sys.stderr.flush()
 
-    return bar
+
+# -- the Solution -----------------------------------------------------------------------------------
+def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Progress, failure, throw, elapsed):
+    out = _concat(run.rows, run.state)
+    n_ok = len(out.t)
+    # Non-finite values reported as success would be a bug upstream; never let them through.
+    finite = np.all(np.isfinite(out.q), axis=1) & np.all(np.isfinite(out.p), axis=1) & np.all(np.isfinite(out.lam), axis=1)
+    failed_step, status = None, Result.SUCCESSFUL
+    if not np.all(finite):
+        n_ok = int(np.flatnonzero(~finite)[0])
+        failed_step, status = n_ok, Result.NONFINITE
+        out = Record(*(x[:n_ok] for x in out))
+    elif failure is not None:
+        failed_step, status = failure[0], failure[1]
+    elif n_ok < opt.n:
+        status = Result.INTERRUPTED
+    t = np.concatenate([[opt.t0], out.t])
+    excursions = int(run.state.stepper.monitor.excursions)
+    stats = {
+        "newton_iterations": out.iterations,
+        "residual_norm": out.residual_norm,
+        "constraint_residual": np.concatenate([[phi0], out.constraint]),
+        "multiplier_drift": np.concatenate([[0.0], out.drift]),
+        "lam_resync": out.resync,
+        "lam_resets": int(np.count_nonzero(out.resync)),
+        "lam_excursions": excursions,
+        "n_jacobians": int(run.state.n_jacobians),
+        "n_newton": int(run.state.n_newton),
+        "h": opt.h,
+        "n_steps": opt.n,
+        "failed_step": failed_step,
+        "recoveries": run.recoveries,
+        "compile_and_run_time": elapsed,
+    }
+    success = status == Result.SUCCESSFUL and n_ok == opt.n
+    message = status.message
+    if failed_step is not None:
+        tf = opt.t0 + failed_step * opt.h
+        tried = f" (after {run.recoveries} recovered steps; max_recoveries={opt.max_recoveries})" if opt.max_recoveries else ""
+        message = f"Step {failed_step} (t = {tf:.6g}, h = {opt.h:.3g}) failed{tried}: {status.message}"
+        if throw:
+            raise NewtonFailure(message, step=failed_step, t=tf, reason=status.name.lower())
+    elif status == Result.INTERRUPTED:
+        message = f"Interrupted after {n_ok} of {opt.n} steps (t = {t[-1]:.6g}); the computed prefix is returned."
+    if method.lam_start == "previous" and excursions:
+        k = _first_excursion(out.drift)
+        note = (
+            f"the multiplier λ_k left its normal band around the hidden constraint in {excursions} steps "
+            f"(‖λ_k − λ(q_k, p_k)‖∞ up to {float(np.max(out.drift)):.2e}, first at t ≈ {t[k + 1]:.6g}). With "
+            "lam_start='previous' (the paper's scheme) λ errors are carried with |R(∞)| = 1 and can grow, and with "
+            "them the errors in q and p. Use lam_start='auto' (re-synchronise when λ drifts) or 'consistent', or a "
+            "smaller step."
+        )
+        message = f"{message} Warning: {note}"
+        warnings.warn(note, RuntimeWarning, stacklevel=3)
+    return Solution(
+        t, np.vstack([q0[None], out.q]), np.vstack([p0[None], out.p]), np.vstack([lam0[None], out.lam]),
+        bool(success), status, message, stats, problem, method, args,
+    )
+
+
+def _first_excursion(drift: np.ndarray) -> int:
+    """Index of the largest growth of the drift over its early level (for the message only)."""
+    if drift.size == 0:
+        return 0
+    early = float(np.max(drift[: min(len(drift), 10)]))
+    above = np.flatnonzero(drift > 10 * early)
+    return int(above[0]) if above.size else int(np.argmax(drift))

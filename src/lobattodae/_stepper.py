@@ -1,42 +1,77 @@
-"""The Lobatto-type IIIA-IIIB step for partitioned index-2 DAEs."""
+"""The Lobatto IIIA-IIIB method object: options, theory, one step, and the Λ₁ policy.
+
+The stage equations are in :mod:`lobattodae._stage_equations` (the paper's scheme in its
+docstring, row by row); this module decides what a step starts from (Newton's guess, the
+reused Jacobian, the start multiplier Λ₁) and what it hands to the next step.
+"""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from ._problem import consistent_lambda, vector_field
-from ._newton import JacobianCache, empty_jacobian_cache, newton_solve
+from . import _stage_equations as se
+from ._newton import JacobianCache, NewtonOptions, empty_jacobian_cache, newton_solve
+from ._problem import consistent_lambda
+from ._results import Result
 from ._tableau import LobattoPair, lobatto_pair
 
-__all__ = ["LobattoIIIAIIIB", "StageSlopes", "StepperState", "StepInfo"]
+__all__ = ["LobattoIIIAIIIB", "StepInfo", "StepperState", "LAM_START_MODES"]
 
-# Extrapolating the previous step's stage polynomial amplifies its values by the Lebesgue-type
-# constant max_i sum_j |l_j(1 + c_i)|; beyond this bound the explicit guess is used instead.
-_MAX_EXTRAPOLATION_GAIN = 1e4
+#: The start-multiplier policies; see :class:`LobattoIIIAIIIB` (``lam_start``).
+LAM_START_MODES = ("auto", "previous", "consistent")
+#: A reused Jacobian is refreshed when the step size changed by more than this fraction.
+H_CHANGE_REFRESH = 0.2
+#: The λ drift monitor compares the drift ‖λ_n − λ(t_n, q_n, p_n)‖∞ with its largest value in
+#: the previous epoch; epochs start DRIFT_EPOCH steps long after a (re)start and double. A drift
+#: above DRIFT_BAND times that level (and above the round-off floor DRIFT_FLOOR·(1 + ‖λ_n‖∞))
+#: is an excursion: λ is re-synchronised ("auto") or the excursion reported ("previous").
+DRIFT_EPOCH = 10
+DRIFT_BAND = 10.0
+DRIFT_FLOOR = 1e-12
 
 
-class StageSlopes(NamedTuple):
-    """Stage slopes of a step, kept to predict the next step's stages:
-    ``V (s, n)``, ``W (s, n)``, ``Lam (s, m)``."""
+class Slopes(NamedTuple):
+    """Stage slopes and multipliers of a step: ``V (s, n)``, ``W (s, n)``, ``Lam (s, m)``."""
 
     V: jax.Array
     W: jax.Array
     Lam: jax.Array
 
 
+class History(NamedTuple):
+    """The previous step's stages, for the predictor."""
+
+    slopes: Slopes
+    correction: Slopes  # what the plain extrapolation missed at the previous step
+    h: jax.Array
+    have_slopes: jax.Array  # bool
+    have_correction: jax.Array  # bool
+
+
+class LamMonitor(NamedTuple):
+    """The drift monitor of the multiplier, ``d_n = ‖λ_n − λ(t_n, q_n, p_n)‖∞`` (see ``_watch``)."""
+
+    level: jax.Array  # largest d_n in the previous epoch (0 in the first epoch after a (re)start)
+    current: jax.Array  # largest d_n so far in this epoch
+    count: jax.Array  # int32, steps in this epoch
+    length: jax.Array  # int32, length of this epoch
+    excursions: jax.Array  # int32, steps with d_n above the band (re-synchronised with "auto")
+
+
 class StepperState(NamedTuple):
-    """What a step hands to the next: the Jacobian cache and the last stage slopes."""
+    """What a step hands to the next: reused Jacobian, predictor history, λ bookkeeping."""
 
     jacobian: JacobianCache
-    slopes: StageSlopes
-    correction: StageSlopes  # error of the plain extrapolation at the last step
-    have_slopes: jax.Array  # bool scalar
-    have_correction: jax.Array  # bool scalar
+    h_jacobian: jax.Array  # the step size the cached Jacobian was evaluated with
+    history: History
+    lam_hidden: jax.Array  # λ(t_n, q_n, p_n), from the hidden constraint at the start point
+    resync: jax.Array  # bool: the next step starts from lam_hidden ("auto" after an excursion)
+    monitor: LamMonitor
 
 
 class StepInfo(NamedTuple):
@@ -46,75 +81,60 @@ class StepInfo(NamedTuple):
     iterations: jax.Array
     residual_norm: jax.Array
     n_jacobians: jax.Array
+    drift: jax.Array  # ‖λ_1 − λ(t_1, q_1, p_1)‖∞
+    resync: jax.Array  # bool: this step started from λ(t_0, q_0, p_0) instead of λ_0 ("auto")
 
 
 @dataclass(frozen=True)
 class LobattoIIIAIIIB:
     r"""The s-stage Lobatto-type IIIA-IIIB partitioned Runge-Kutta method for index-2 DAEs.
 
-    For ``q' = f(t, q, p)``, ``p' = g(t, q, p, λ)``, ``0 = φ(t, q, p)`` one step of size h
-    from consistent ``(t0, q0, p0, λ0)`` solves, with ``A = (a_ij), b, c`` Lobatto IIIA and
-    ``Â = (â_ij)`` Lobatto IIIB (``â_ij = b_j (1 - a_ji / b_i)``), ``t_j = t0 + c_j h``:
+    One step solves the stage equations written out in :mod:`lobattodae._stage_equations`
+    (Martín de Diego & Sato, the scheme of the paper): IIIA for q and for the constraint
+    momenta ``p̃_i``, IIIB for ``P_i``, ``φ(t_i, Q_i, p̃_i) = 0`` for i = 2..s, so that
+    ``φ(t_1, q_1, p_1) = 0`` at every step point. Global orders on a fixed interval (the
+    paper's Corollary): q, p ``h^(2s-2)``; λ ``h^s`` for even s and ``h^(s-1)`` for odd s.
 
-    .. math::
-
-        Q_i &= q_0 + h \sum_{j=1}^s a_{ij} V_j,  & V_j &= f(t_j, Q_j, P_j),\\
-        P_i &= p_0 + h \sum_{j=1}^s \hat a_{ij} W_j, & W_j &= g(t_j, Q_j, P_j, Λ_j),\\
-        \tilde p_i &= p_0 + h \sum_{j=1}^s a_{ij} W_j, & 0 &= φ(t_i, Q_i, \tilde p_i),
-            \quad i = 2, \dots, s,\\
-        Λ_1 &= λ_0, & &\\
-        q_1 &= q_0 + h \sum_j b_j V_j = Q_s, & p_1 &= p_0 + h \sum_j b_j W_j = \tilde p_s,
-            \quad λ_1 = Λ_s.
-
-    The constraint is imposed at ``p̃_i`` (IIIA coefficients) rather than at ``P_i``: IIIB's
-    last column is zero, which would make ``D_pφ (Â ⊗ I) D_λ g`` singular. Since
-    ``a_sj = b_j``, ``φ(t_1, q_1, p_1) = 0`` holds at every step to Newton tolerance.
-
-    Unknowns: ``Q_2..Q_s`` (``Q_1 = q_0``), ``P_1..P_s`` and ``Λ_2..Λ_s``, i.e.
-    ``(2s-1) n + (s-1) m`` scalars. Newton works on ``Z_j = h Λ_j`` (λ enters every
-    equation multiplied by h, so this keeps the Jacobian O(1) as h → 0), with an autodiff
-    Jacobian; the iteration stops on the scaled increment (Hairer-Wanner rate test).
-
-    Global orders on ``[t0, t0 + T]`` (Martín de Diego & Sato, Corollary): q, p
-    ``h^(2s-2)``; λ ``h^s`` for even s and ``h^(s-1)`` for odd s.
+    Newton works on ``Z_j = h Λ_j`` with a structured Jacobian whose inverse is reused across
+    iterations and steps (refreshed when the contraction slows or h changes by more than
+    20 %), starting from the previous step's stage polynomials evaluated at the new stage
+    times.
 
     Parameters
     ----------
     stages : int
         Number of stages s ≥ 2.
     tol : float
-        Relative/absolute tolerance of the Newton increment, ``|Δx_i| ≤ tol (1 + |x_i|)``.
+        Newton tolerance on the scaled increment, ``|Δx_i| ≤ tol (1 + |x_i|)``.
     max_iterations : int
         Newton iterations per step before the step is declared failed.
     reuse_jacobian : bool
-        Simplified Newton: keep the LU factors of the stage Jacobian across iterations and
-        steps, refreshing them only when the contraction rate degrades. Much cheaper per
-        step; the converged solution is the same to Newton tolerance.
-    lam_start : {"previous", "consistent"}
-        What ``Λ_1`` is at step n > 0; a trade-off, measured in ``docs/verification.md``.
+        Simplified Newton (default): keep the inverse Jacobian across iterations and steps.
+    lam_start : {"auto", "previous", "consistent"}
+        What the start multiplier ``Λ_1`` of a step is.
 
-        * ``"previous"`` (default) is the paper's scheme: ``Λ_1 = λ_n``, the ``Λ_s`` of the
-          previous step; the proven orders above refer to it. The step map on (q, p, λ) is
-          symmetric, so energy errors stay bounded on reversible problems. But λ errors are
-          propagated with ``|R(∞)| = 1`` (never damped) and on some problems (the Chaplygin
-          sleigh, the rolling disk) they grow like ``exp(C t)`` over long runs and then spoil
-          q and p too; ``solve`` warns when ``|λ_n − λ(q_n, p_n)|`` grows.
-        * ``"consistent"`` sets ``Λ_1 = λ(t_n, q_n, p_n)`` solved from the hidden constraint
-          ``φ_t + φ_q f + φ_p g = 0``, so λ errors cannot accumulate (on the first step both
-          coincide). Observed orders: q, p ``2s-2``, λ ``s`` for every s, and Newton needs
-          fewer iterations. The step is no longer symmetric: on reversible problems the
-          energy error drifts (linearly, at the order of the method) instead of staying
-          bounded.
+        * ``"previous"`` is the paper's scheme, ``Λ_1 = λ_n``; the proven orders refer to it.
+          The step is symmetric (bounded energy errors on reversible problems), but a λ error
+          is carried with ``|R(∞)| = 1`` and never damped: on some problems (Chaplygin
+          sleigh, rolling disk) it grows like ``exp(C t)`` and spoils q and p on long runs.
+        * ``"consistent"`` sets ``Λ_1 = λ(t_n, q_n, p_n)`` from the hidden constraint at every
+          step: λ errors cannot accumulate and λ reaches order s for every s, but the step is
+          no longer symmetric and energy drifts on reversible problems.
+        * ``"auto"`` (default) is the paper's scheme, re-synchronised with the hidden
+          constraint (one step starts from ``λ(t_n, q_n, p_n)``) only when the drift
+          ``‖λ_n − λ(t_n, q_n, p_n)‖∞`` leaves its normal band: more than ``DRIFT_BAND`` times
+          its level in the previous epoch of a sequence of doubling epochs, which polynomial
+          growth of the global λ error never does and the exponential growth of the undamped
+          mode does. It keeps the symmetric scheme where λ errors stay bounded (reversible
+          problems) and bounds them where they grow; resets are counted
+          (``stats["lam_resets"]`` in :func:`~lobattodae.solve`).
     jacobian : {"structured", "autodiff"}
-        How Newton's Jacobian is formed. ``"structured"`` (default) differentiates each
-        stage's ``(f, g)`` in ``(q, p, λ)`` and ``φ`` in ``(q, p)`` and assembles the
-        block matrix from the coefficients (about 2x cheaper on the falling disk);
-        ``"autodiff"`` applies ``jax.jacfwd`` to the whole stage residual. Both give the
-        same matrix up to round-off.
+        ``"structured"`` (default) assembles Newton's matrix from per-stage blocks of f, g and
+        φ; ``"autodiff"`` applies ``jax.jacfwd`` to the whole stage residual (same matrix).
     extrapolate : bool
-        Start Newton from the previous step's stage polynomial extrapolated to the new step
-        (falls back to an explicit Euler-type guess on the first step, and for large s where
-        extrapolation is ill-conditioned).
+        Start Newton from the previous step's stage polynomials (default) or from constant
+        stages. Extrapolation is switched off automatically for large s, where it is
+        ill-conditioned.
     """
 
     stages: int = 3
@@ -122,76 +142,80 @@ class LobattoIIIAIIIB:
     max_iterations: int = 20
     reuse_jacobian: bool = True
     extrapolate: bool = True
-    lam_start: str = "previous"
+    lam_start: str = "auto"
     jacobian: str = "structured"
 
     def __post_init__(self):
         lobatto_pair(self.stages)  # validates s
-        if not (isinstance(self.tol, (int, float)) and 0 < self.tol < 1):
-            raise ValueError(f"tol must be a float in (0, 1); got tol={self.tol!r}.")
-        if self.lam_start not in ("previous", "consistent"):
+        self.newton  # validates tol, max_iterations, reuse_jacobian
+        if self.lam_start not in LAM_START_MODES:
             raise ValueError(
-                f"lam_start must be 'previous' (the paper's scheme, Λ_1 = λ_n) or 'consistent' "
-                f"(Λ_1 from the hidden constraint at (t_n, q_n, p_n)); got {self.lam_start!r}."
+                "lam_start must be 'auto' (the paper's scheme, re-synchronised with the hidden "
+                "constraint when λ drifts out of its band), 'previous' (the paper's scheme, Λ_1 = λ_n) "
+                f"or 'consistent' (Λ_1 from the hidden constraint at every step); got {self.lam_start!r}."
             )
         if self.jacobian not in ("structured", "autodiff"):
             raise ValueError(
                 f"jacobian must be 'structured' (per-stage blocks, the default) or 'autodiff' "
                 f"(forward-mode through the whole stage residual); got {self.jacobian!r}."
             )
-        if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
-            raise ValueError(
-                f"max_iterations must be a positive integer; got {self.max_iterations!r}."
-            )
+        if not isinstance(self.extrapolate, bool):
+            raise ValueError(f"extrapolate must be True or False; got {self.extrapolate!r}.")
 
-    # -- tableau and theory -------------------------------------------------------------
+    # -- tableau and theory ---------------------------------------------------------------
     @property
     def pair(self) -> LobattoPair:
         """The Lobatto IIIA-IIIB coefficients ``(s, c, b, a, a_hat)``."""
         return lobatto_pair(self.stages)
 
+    @property
+    def newton(self) -> NewtonOptions:
+        return NewtonOptions(self.tol, self.max_iterations, self.reuse_jacobian)
+
     def order(self) -> dict[str, int]:
         """Global orders proven for this method: ``{"q": 2s-2, "p": 2s-2, "lam": ...}``."""
-        s = self.stages
-        return {"q": 2 * s - 2, "p": 2 * s - 2, "lam": s if s % 2 == 0 else s - 1}
+        return self.pair.order()
 
     def n_unknowns(self, n: int, m: int) -> int:
         """Size of the Newton system, ``(2s-1) n + (s-1) m``."""
-        s = self.stages
-        return (2 * s - 1) * n + (s - 1) * m
+        return se.Layout(self.stages, n, m).size
 
-    def _extrapolation_matrix(self) -> np.ndarray | None:
-        c = self.pair.c
-        s = self.stages
-        e = np.ones((s, s))
-        for i in range(s):
-            x = 1.0 + c[i]
-            for j in range(s):
-                for k in range(s):
-                    if k != j:
-                        e[i, j] *= (x - c[k]) / (c[j] - c[k])
-        if np.max(np.sum(np.abs(e), axis=1)) > _MAX_EXTRAPOLATION_GAIN:
-            return None
-        return e
+    @functools.cached_property
+    def _use_extrapolation(self) -> bool:
+        return self.extrapolate and se.extrapolation_gain(self.pair) <= se.MAX_EXTRAPOLATION_GAIN
 
-    # -- stepping -----------------------------------------------------------------------
-    def init(self, q0, p0, lam0) -> StepperState:
-        """Initial stepper state (no Jacobian yet, no previous stages)."""
-        s, n, m = self.stages, q0.shape[-1], lam0.shape[-1]
+    # -- stepping ---------------------------------------------------------------------------
+    def init(self, problem, t0, q0, p0, lam0, args: Any = None, h=None) -> StepperState:
+        """The state before the first step from ``(t0, q0, p0, λ0)``: no Jacobian, no history,
+        ``λ(t0, q0, p0)`` from the hidden constraint (one Newton update of λ0)."""
+        q0 = jnp.asarray(q0)
         dtype = q0.dtype
-        zeros = StageSlopes(jnp.zeros((s, n), dtype), jnp.zeros((s, n), dtype), jnp.zeros((s, m), dtype))
+        lam0 = jnp.asarray(lam0, dtype)
+        s, n, m = self.stages, q0.shape[-1], lam0.shape[-1]
+        zeros = Slopes(jnp.zeros((s, n), dtype), jnp.zeros((s, n), dtype), jnp.zeros((s, m), dtype))
+        lam_hidden = consistent_lambda(problem, jnp.asarray(t0, dtype), q0, jnp.asarray(p0, dtype), lam0, args, iterations=1)
         return StepperState(
             jacobian=empty_jacobian_cache(self.n_unknowns(n, m), dtype),
-            slopes=zeros,
-            correction=zeros,
-            have_slopes=jnp.asarray(False),
-            have_correction=jnp.asarray(False),
+            h_jacobian=jnp.asarray(0.0 if h is None else h, dtype),
+            history=History(zeros, zeros, jnp.asarray(1.0, dtype), jnp.asarray(False), jnp.asarray(False)),
+            lam_hidden=lam_hidden,
+            resync=jnp.asarray(False),
+            monitor=_fresh_monitor(dtype, jnp.asarray(0, jnp.int32)),
         )
+
+    def start_multiplier(self, lam_n, state: StepperState):
+        """Λ₁ of the next step: the one place where the ``lam_start`` policy is applied."""
+        if self.lam_start == "previous":
+            return lam_n
+        if self.lam_start == "consistent":
+            return state.lam_hidden
+        return jnp.where(state.resync, state.lam_hidden, lam_n)
 
     def step(self, problem, t0, q0, p0, lam0, h, args: Any = None, state: StepperState | None = None):
         """Take one step of size ``h`` from consistent ``(t0, q0, p0, λ0)``.
 
-        Pure and jit/vmap-able. ``h`` may be negative (a step backwards in time).
+        Pure and jit/vmap-able; ``h`` may be negative (a step backwards in time). ``state``
+        is what the previous step returned (None for a first step).
 
         Returns
         -------
@@ -199,206 +223,99 @@ class LobattoIIIAIIIB:
         info : StepInfo
             ``result`` (a :class:`Result` code; anything but 0 means the step failed and
             ``q1, p1, lam1`` are not a solution), ``iterations``, ``residual_norm``,
-            ``n_jacobians``.
+            ``n_jacobians``, ``drift`` (‖λ_1 − λ(t_1, q_1, p_1)‖∞), ``resync``.
         state : StepperState
-            To be passed to the next step (Jacobian reuse, initial guess).
+            To be passed to the next step (Jacobian reuse, predictor, λ bookkeeping).
         """
         q0 = jnp.asarray(q0)
         dtype = q0.dtype
-        p0 = jnp.asarray(p0, dtype)
-        lam0 = jnp.asarray(lam0, dtype)
-        t0 = jnp.asarray(t0, dtype)
-        if self.lam_start == "consistent":
-            lam0 = consistent_lambda(problem, t0, q0, p0, lam0, args, iterations=1)
-        return self.step_from(problem, t0, q0, p0, lam0, h, args, state)
-
-    def step_from(self, problem, t0, q0, p0, lam_start, h, args: Any = None, state: StepperState | None = None):
-        """:meth:`step` with ``Λ_1 = lam_start`` given as is (``lam_start`` is not applied).
-
-        For loops that already know ``λ(t_n, q_n, p_n)``: :func:`~lobattodae.solve` computes
-        it after every step for its multiplier-drift diagnostic and, with
-        ``lam_start="consistent"``, hands it to the next step instead of solving for it twice.
-        """
-        q0 = jnp.asarray(q0)
-        dtype = q0.dtype
-        p0 = jnp.asarray(p0, dtype)
-        lam0 = jnp.asarray(lam_start, dtype)
-        h = jnp.asarray(h, dtype)
-        t0 = jnp.asarray(t0, dtype)
+        p0, lam0 = jnp.asarray(p0, dtype), jnp.asarray(lam0, dtype)
+        t0, h = jnp.asarray(t0, dtype), jnp.asarray(h, dtype)
         if state is None:
-            state = self.init(q0, p0, lam0)
+            state = self.init(problem, t0, q0, p0, lam0, args, h)
         pair = self.pair
-        a = jnp.asarray(pair.a, dtype)
-        a_hat = jnp.asarray(pair.a_hat, dtype)
-        system = self._stage_system(problem, t0, q0, p0, lam0, h, args)
-        residual, structured_jacobian, unpack, pack, fg, tj = system
+        layout = se.Layout(self.stages, q0.shape[-1], lam0.shape[-1])
+        params = se.StageParams(t0, h, q0, p0, self.start_multiplier(lam0, state), args)
 
-        x0, plain = self._initial_guess(lam0, h, state, q0, p0, a, a_hat, pack)
+        x0, plain = self._guess(layout, params, state.history)
+        residual = functools.partial(se.stage_residual, problem, pair, layout)
+        jac_fn = se.stage_jacobian if self.jacobian == "structured" else se.stage_jacobian_autodiff
+        h_ok = jnp.abs(h - state.h_jacobian) <= H_CHANGE_REFRESH * jnp.abs(h)
+        cache = state.jacobian._replace(valid=jnp.logical_and(state.jacobian.valid, h_ok))
         x, ninfo, cache = newton_solve(
-            residual,
-            x0,
-            state.jacobian,
-            tol=self.tol,
-            max_iterations=self.max_iterations,
-            reuse_jacobian=self.reuse_jacobian,
-            jacobian=structured_jacobian if self.jacobian == "structured" else None,
+            residual, functools.partial(jac_fn, problem, pair, layout), x0, params, cache, self.newton
         )
-        Q, P, Z = unpack(x)
-        lam = Z / h
-        V, W = fg(tj, Q, P, lam)
-        b = jnp.asarray(pair.b, dtype)
-        q1 = Q[-1]
-        p1 = p0 + h * (b @ W)
-        lam1 = lam[-1]
-        info = StepInfo(ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians)
-        new_slopes = StageSlopes(V, W, lam)
-        have_correction = jnp.logical_and(state.have_slopes, plain is not None)
-        correction = new_slopes if plain is None else jax.tree_util.tree_map(jnp.subtract, new_slopes, plain)
-        new_state = StepperState(cache, new_slopes, correction, jnp.asarray(True), have_correction)
+        h_jac = jnp.where(ninfo.n_jacobians > 0, h, state.h_jacobian)
+
+        stages = se.stage_values(problem, pair, layout, x, params)
+        q1, p1, lam1 = se.step_values(pair, params, stages)
+        lam_hidden = consistent_lambda(problem, t0 + h, q1, p1, lam1, args, iterations=1)
+        drift = jnp.max(jnp.abs(lam1 - lam_hidden))
+        monitor, excursion = self._watch(state.monitor, drift, lam1, state.resync)
+        history = self._remember(params, state.history, stages, plain)
+        new_state = StepperState(
+            jacobian=cache,
+            h_jacobian=h_jac,
+            history=history,
+            lam_hidden=lam_hidden,
+            resync=jnp.logical_and(excursion, self.lam_start == "auto"),
+            monitor=monitor,
+        )
+        info = StepInfo(ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians, drift, state.resync)
         return q1, p1, lam1, info, new_state
 
-    def _stage_system(self, problem, t0, q0, p0, lam0, h, args):
-        """The Newton system of one step: ``(residual, structured_jacobian, unpack, pack,
-        fg, tj)`` for the unknowns ``x = (Q_2..Q_s, P_1..P_s, Z_2..Z_s)`` (arrays as
-        prepared by :meth:`step_from`)."""
-        pair = self.pair
-        s = self.stages
-        dtype = q0.dtype
-        n, m = q0.shape[0], lam0.shape[0]
-        a = jnp.asarray(pair.a, dtype)
-        a_hat = jnp.asarray(pair.a_hat, dtype)
-        c = jnp.asarray(pair.c, dtype)
-        tj = t0 + c * h
-
-        fg = jax.vmap(lambda t, q, p, lam: vector_field(problem, t, q, p, lam, args))
-        phi = jax.vmap(lambda t, q, p: problem.phi(t, q, p, args))
-
-        def unpack(x):
-            i1 = (s - 1) * n
-            i2 = i1 + s * n
-            Q = jnp.concatenate([q0[None], x[:i1].reshape(s - 1, n)])
-            P = x[i1:i2].reshape(s, n)
-            Z = jnp.concatenate([(h * lam0)[None], x[i2:].reshape(s - 1, m)])
-            return Q, P, Z
-
-        def pack(Q, P, Z):
-            return jnp.concatenate([Q[1:].ravel(), P.ravel(), Z[1:].ravel()])
-
-        def stage_residual(Q, P, V, W, phi_values):
-            r_q = Q[1:] - q0 - h * (a[1:] @ V)
-            r_p = P - p0 - h * (a_hat @ W)
-            return jnp.concatenate([r_q.ravel(), r_p.ravel(), phi_values.ravel()])
-
-        def residual(x):
-            Q, P, Z = unpack(x)
-            V, W = fg(tj, Q, P, Z / h)
-            p_tilde = p0 + h * (a[1:] @ W)
-            return stage_residual(Q, P, V, W, phi(tj[1:], Q[1:], p_tilde))
-
-        def structured_jacobian(x):
-            Q, P, Z = unpack(x)
-            (fq, fp, gq, gp, gl), (V, W) = _stage_jacobians(problem, tj, Q, P, Z / h, args)
-            p_tilde = p0 + h * (a[1:] @ W)
-            (phi_q, phi_p), phi_values = _constraint_jacobians(problem, tj[1:], Q[1:], p_tilde, args)
-            jac = _assemble_jacobian(a, a_hat, h, fq, fp, gq, gp, gl, phi_q, phi_p)
-            return stage_residual(Q, P, V, W, phi_values), jac
-
-        return residual, structured_jacobian, unpack, pack, fg, tj
-
-    def _initial_guess(self, lam0, h, state, q0, p0, a, a_hat, pack):
-        """Newton's starting point, and the plain extrapolation of the slopes (or None).
-
-        From the second step on, the previous step's slopes ``V, W`` and multipliers ``Λ`` are
-        extrapolated (Lagrange interpolation at ``c``, evaluated at ``1 + c``), corrected by
-        the error this extrapolation made at the previous step, and the stages rebuilt from the
-        *new* ``q0, p0``: ``Q = q0 + h A V``, ``P = p0 + h Â W``. The IIIB stages (and with
-        them the slopes) deviate from a smooth polynomial by O(h^(s-1)) in a pattern that
-        varies smoothly from step to step, which the correction removes. First step: constant
-        stages ``(q0, p0, λ0)``.
-        """
-        s = self.stages
-        constant = pack(
-            jnp.broadcast_to(q0, (s, q0.shape[0])),
-            jnp.broadcast_to(p0, (s, p0.shape[0])),
-            jnp.broadcast_to(h * lam0, (s, lam0.shape[0])),
-        )
-        e = self._extrapolation_matrix() if self.extrapolate else None
-        if e is None:
+    # -- what a step starts from and hands on ------------------------------------------------
+    def _guess(self, layout, params, history: History):
+        """Newton's start, ``(x0, plain)``: the extrapolated stage polynomials (and their
+        uncorrected values, see :func:`~lobattodae._stage_equations.predict_stages`), or
+        constant stages on a first step (``plain`` is None without extrapolation)."""
+        constant = se.constant_stages(layout, params)
+        if not self._use_extrapolation:
             return constant, None
-        e = jnp.asarray(e, q0.dtype)
-        plain = StageSlopes(*(e @ x for x in state.slopes))
-        use_corr = state.have_correction
-        V, W, Lam = (jnp.where(use_corr, x + d, x) for x, d in zip(plain, state.correction))
-        extrap = pack(q0 + h * (a @ V), p0 + h * (a_hat @ W), h * Lam)
-        usable = jnp.logical_and(state.have_slopes, jnp.all(jnp.isfinite(extrap)))
-        return jnp.where(usable, extrap, constant), plain
+        correction = Slopes(*(jnp.where(history.have_correction, d, 0.0) for d in history.correction))
+        x0, plain = se.predict_stages(self.pair, layout, params, history.slopes, correction, history.h)
+        usable = jnp.logical_and(history.have_slopes, jnp.all(jnp.isfinite(x0)))
+        return jnp.where(usable, x0, constant), plain
+
+    @staticmethod
+    def _remember(params, history: History, stages: se.Stages, plain) -> History:
+        """The stages of this step for the next predictor, and the error the plain
+        extrapolation made on them (the next correction)."""
+        slopes = Slopes(stages.V, stages.W, stages.Lam)
+        if plain is None:
+            return History(slopes, history.correction, params.h, jnp.asarray(True), jnp.asarray(False))
+        correction = Slopes(*(x - e for x, e in zip(slopes, plain)))
+        return History(slopes, correction, params.h, jnp.asarray(True), history.have_slopes)
+
+    @staticmethod
+    def _watch(monitor: LamMonitor, drift, lam1, restarted):
+        """Update the λ drift monitor; return it and whether this step left the band.
+
+        The paper's scheme carries a λ error with ``|R(∞)| = 1``: on reversible problems it
+        stays bounded, elsewhere it can grow like ``exp(C t)`` (the sleigh, the rolling disk).
+        Epochs of doubling length (DRIFT_EPOCH steps first) tell the two apart without knowing
+        the problem's time scale: a drift that grows polynomially (the global error building
+        up after a consistent start, t² at most) gains a bounded factor from one epoch to the
+        next, an exponentially growing one exceeds DRIFT_BAND times the previous epoch's level
+        once the epochs are long enough. A re-synchronised step starts a new first epoch.
+        """
+        monitor = jax.tree_util.tree_map(
+            lambda fresh, old: jnp.where(restarted, fresh, old), _fresh_monitor(drift.dtype, monitor.excursions), monitor
+        )
+        floor = DRIFT_FLOOR * (1.0 + jnp.max(jnp.abs(lam1)))
+        excursion = (monitor.level > 0) & (drift > jnp.maximum(DRIFT_BAND * monitor.level, floor))
+        current = jnp.maximum(monitor.current, drift)
+        count = monitor.count + 1
+        ends = count >= monitor.length
+        return LamMonitor(
+            level=jnp.where(ends, current, monitor.level),
+            current=jnp.where(ends, 0.0, current),
+            count=jnp.where(ends, 0, count),
+            length=jnp.where(ends, 2 * monitor.length, monitor.length),
+            excursions=monitor.excursions + excursion.astype(jnp.int32),
+        ), excursion
 
 
-# -- the stage Jacobian from per-stage blocks ---------------------------------------------
-def _stage_jacobians(problem, tj, Q, P, lam, args):
-    """Per stage j: ``f_q, f_p, g_q, g_p, g_λ`` at ``(t_j, Q_j, P_j, Λ_j)`` and ``(V_j, W_j)``.
-
-    One forward-mode pass with ``2n + m`` tangents per stage, instead of the
-    ``(2s-1) n + (s-1) m`` tangents of the whole residual, each of which runs all s stages.
-    """
-
-    def one(t, q, p, lam_j):
-        def field(qq, pp, ll):
-            v, w = vector_field(problem, t, qq, pp, ll, args)
-            return (v, w), (v, w)
-
-        ((fq, fp, _), (gq, gp, gl)), vw = jax.jacfwd(field, argnums=(0, 1, 2), has_aux=True)(q, p, lam_j)
-        return (fq, fp, gq, gp, gl), vw
-
-    return jax.vmap(one)(tj, Q, P, lam)
-
-
-def _constraint_jacobians(problem, t, Q, p_tilde, args):
-    """``(φ_q, φ_p)`` and ``φ`` at the constrained stages ``(t_i, Q_i, p̃_i)``, i = 2..s."""
-
-    def one(ti, q, p):
-        def con(qq, pp):
-            r = problem.phi(ti, qq, pp, args)
-            return r, r
-
-        return jax.jacfwd(con, argnums=(0, 1), has_aux=True)(q, p)
-
-    return jax.vmap(one)(t, Q, p_tilde)
-
-
-def _assemble_jacobian(a, a_hat, h, fq, fp, gq, gp, gl, phi_q, phi_p):
-    r"""The Jacobian of the stage residual with respect to ``(Q_2..Q_s, P_1..P_s, Z_2..Z_s)``.
-
-    With ``Z_k = h Λ_k``, ``p̃_i = p_0 + h Σ_k a_ik W_k`` and per-stage blocks
-    ``F_x = ∂f/∂x``, ``G_x = ∂g/∂x`` at stage k, ``Φ_x = ∂φ/∂x`` at ``(Q_i, p̃_i)``:
-
-    * ``r_q,i = Q_i - q_0 - h Σ a_ik V_k``: ``δ_ik I - h a_ik F_q``, ``-h a_ik F_p``, 0;
-    * ``r_p,i = P_i - p_0 - h Σ â_ik W_k``: ``-h â_ik G_q``, ``δ_ik I - h â_ik G_p``, ``-â_ik G_λ``;
-    * ``r_φ,i = φ(Q_i, p̃_i)``: ``δ_ik Φ_q + h a_ik Φ_p G_q``, ``h a_ik Φ_p G_p``, ``a_ik Φ_p G_λ``.
-    """
-    s, n, m = fq.shape[0], fq.shape[1], gl.shape[2]
-    eye_n = jnp.eye(n, dtype=fq.dtype)
-    eye_s = jnp.eye(s, dtype=fq.dtype)
-    a1 = a[1:]
-
-    def kron(coef, blocks):  # (rows, cols) coefficients times per-column blocks (cols, x, y)
-        return jnp.einsum("ik,kab->iakb", coef, blocks)
-
-    def flat(block):
-        r, x, c, y = block.shape
-        return block.reshape(r * x, c * y)
-
-    def through_phi(blocks):  # Φ_p,i @ block_k for rows i = 2..s, columns k
-        return jnp.einsum("ica,kab->ickb", phi_p, blocks)
-
-    rq_q = jnp.einsum("ik,ab->iakb", eye_s[1:, 1:], eye_n) - h * kron(a1[:, 1:], fq[1:])
-    rq_p = -h * kron(a1, fp)
-    rq_z = jnp.zeros((s - 1, n, s - 1, m), fq.dtype)
-    rp_q = -h * kron(a_hat[:, 1:], gq[1:])
-    rp_p = jnp.einsum("ik,ab->iakb", eye_s, eye_n) - h * kron(a_hat, gp)
-    rp_z = -kron(a_hat[:, 1:], gl[1:])
-    rf_q = jnp.einsum("ik,icb->ickb", eye_s[1:, 1:], phi_q) + h * a1[:, None, 1:, None] * through_phi(gq[1:])
-    rf_p = h * a1[:, None, :, None] * through_phi(gp)
-    rf_z = a1[:, None, 1:, None] * through_phi(gl[1:])
-    rows = [[rq_q, rq_p, rq_z], [rp_q, rp_p, rp_z], [rf_q, rf_p, rf_z]]
-    return jnp.concatenate([jnp.concatenate([flat(b) for b in row], axis=1) for row in rows], axis=0)
+def _fresh_monitor(dtype, excursions) -> LamMonitor:
+    zero = jnp.asarray(0.0, dtype)
+    return LamMonitor(zero, zero, jnp.asarray(0, jnp.int32), jnp.asarray(DRIFT_EPOCH, jnp.int32), excursions)

@@ -28,6 +28,7 @@ import numpy as np
 
 __all__ = [
     "LobattoPair",
+    "lagrange_basis",
     "lobatto_iiia",
     "lobatto_iiib",
     "lobatto_nodes",
@@ -197,31 +198,42 @@ def lobatto_weights(c: np.ndarray) -> np.ndarray:
     return 0.5 * (b + b[::-1])
 
 
-def _lagrange_basis(c: np.ndarray, tau: np.ndarray) -> np.ndarray:
+def lagrange_basis(c: np.ndarray, tau):
     """Lagrange basis ``l_j(tau) = prod_{k != j} (tau - c_k) / (c_j - c_k)``.
 
     The product form is evaluated factor by factor (each factor to relative accuracy
-    ``eps``), which is well conditioned for Lobatto nodes.
+    ``eps``), which is well conditioned for Lobatto nodes. ``tau`` may be a NumPy or a JAX
+    array (also a traced one): the predictor of the step evaluates the previous step's stage
+    polynomial at the new stage times with it.
 
     Parameters
     ----------
     c : ndarray, shape (s,)
-        Interpolation nodes.
-    tau : ndarray, shape (m,)
+        Interpolation nodes (NumPy, constants).
+    tau : array, shape (m,)
         Evaluation points.
 
     Returns
     -------
-    ndarray, shape (m, s)
-        ``out[q, j] = l_j(tau_q)``.
+    array, shape (m, s)
+        ``out[q, j] = l_j(tau_q)``, of the array type of ``tau``.
     """
+    xp = np if isinstance(tau, np.ndarray) else _jnp()
     s = c.shape[0]
-    out = np.ones((tau.shape[0], s))
+    cols = []
     for j in range(s):
+        col = xp.ones_like(tau)
         for k in range(s):
             if k != j:
-                out[:, j] *= (tau - c[k]) / (c[j] - c[k])
-    return out
+                col = col * ((tau - c[k]) / (c[j] - c[k]))
+        cols.append(col)
+    return xp.stack(cols, axis=-1)
+
+
+def _jnp():
+    import jax.numpy as jnp
+
+    return jnp
 
 
 def lobatto_iiia(c: np.ndarray) -> np.ndarray:
@@ -253,7 +265,7 @@ def lobatto_iiia(c: np.ndarray) -> np.ndarray:
     a = np.zeros((s, s))
     for i in range(1, (s + 1) // 2):  # rows with c_i <= 1/2 (the middle one for odd s)
         tau = 0.5 * c[i] * (1.0 + t)
-        a[i] = 0.5 * c[i] * (w @ _lagrange_basis(c, tau))
+        a[i] = 0.5 * c[i] * (w @ lagrange_basis(c, tau))
     for i in range(s // 2):  # mirror: a[s-1-i, s-1-j] = b[j] - a[i, j]
         a[s - 1 - i] = (b - a[i])[::-1]
     a[-1] = b
@@ -350,6 +362,17 @@ class LobattoPair:
 
     def __hash__(self) -> int:
         return hash(("LobattoPair", self.s))
+
+    def order(self) -> dict[str, int]:
+        """Global orders for index-2 partitioned DAEs (the paper's Corollary):
+        ``{"q": 2s-2, "p": 2s-2, "lam": s}`` for even s and ``"lam": s-1`` for odd s."""
+        s = self.s
+        return {"q": 2 * s - 2, "p": 2 * s - 2, "lam": s if s % 2 == 0 else s - 1}
+
+    @property
+    def r_infinity(self) -> int:
+        """``R(∞) = (-1)^(s-1)`` of IIIA: the factor by which a λ error is carried per step."""
+        return -1 if self.s % 2 == 0 else 1
 
     def __repr__(self) -> str:
         return f"LobattoPair(s={self.s})"

@@ -218,14 +218,6 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
     return q0, np.asarray(p0, np.float64), np.asarray(lam0, np.float64), float(np.max(np.abs(phi0)))
 
 
-def lambda_newton_update(problem, t0, q0, p0, lam, args=None) -> np.ndarray:
-    """One Newton update of λ on the hidden constraint at ``(t0, q0, p0)``, with the program
-    the validation already compiled (for ``lam_start="consistent"``'s first Λ₁)."""
-    _, r, jac = (np.asarray(x) for x in _initial_quantities(
-        problem, jnp.asarray(t0, jnp.float64), jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam), args))
-    return np.asarray(lam) - np.linalg.solve(jac, r)
-
-
 @functools.partial(jax.jit, static_argnums=0)
 def _mass_matrix_at(problem, t, q, args):
     return problem.mass_matrix(t, q, args)

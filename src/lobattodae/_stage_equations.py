@@ -1,0 +1,287 @@
+r"""The stage equations of one Lobatto IIIA-IIIB step (the paper's scheme, eq. RK_partitioned_system).
+
+For ``q' = f(t, q, p)``, ``p' = g(t, q, p, λ)``, ``0 = φ(t, q, p)``, one step of size h from
+``(t_0, q_0, p_0)`` with start multiplier ``Λ_1`` (decided by the stepper, see
+:mod:`lobattodae._stepper`), ``A = (a_ij), b, c`` Lobatto IIIA, ``Â = (â_ij)`` Lobatto IIIB
+(``â_ij = b_j (1 - a_ji / b_i)``) and stage times ``t_j = t_0 + c_j h``:
+
+    Q_i = q_0 + h Σ_j a_ij V_j,     V_j = f(t_j, Q_j, P_j)                   (1)  i = 2..s
+    P_i = p_0 + h Σ_j â_ij W_j,     W_j = g(t_j, Q_j, P_j, Λ_j)              (2)  i = 1..s
+    0   = φ(t_i, Q_i, p̃_i),        p̃_i = p_0 + h Σ_j a_ij W_j  (IIIA!)    (3)  i = 2..s
+    q_1 = Q_s,   p_1 = p̃_s = p_0 + h Σ_j b_j W_j,   λ_1 = Λ_s               (4)
+
+``Q_1 = q_0`` (IIIA's first row is zero, H1). The constraint is imposed at ``p̃_i`` rather
+than at ``P_i`` because IIIB's last column is zero (H1'), which would make
+``D_pφ (Â ⊗ I) D_λg`` singular. Since ``a_sj = b_j`` (H3), ``φ(t_1, q_1, p_1) = 0`` holds at
+every step point to the accuracy of the stage solve.
+
+The unknowns are ``x = (Q_2..Q_s, P_1..P_s, Z_2..Z_s)`` with ``Z_j = h Λ_j`` (λ enters every
+row multiplied by h; this keeps the Jacobian O(1) as h → 0): ``(2s-1) n + (s-1) m`` scalars,
+laid out stage-major in :class:`Layout`. Everything here is a pure module-level function of
+explicit arguments: the problem and the coefficients are static (hashable, baked into the
+trace), the numbers are in :class:`StageParams`.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._problem import vector_field
+from ._tableau import LobattoPair, lagrange_basis
+
+__all__ = [
+    "Layout",
+    "StageParams",
+    "Stages",
+    "assemble_jacobian",
+    "predict_stages",
+    "stage_jacobian",
+    "stage_residual",
+    "stage_values",
+    "step_values",
+]
+
+#: Extrapolating the previous step's stage polynomial amplifies its values by the Lebesgue-type
+#: constant max_i Σ_j |l_j(1 + c_i)|; beyond this bound the constant guess is used instead.
+MAX_EXTRAPOLATION_GAIN = 1e4
+
+
+class StageParams(NamedTuple):
+    """The numbers one step's stage system depends on (a pytree; everything traced)."""
+
+    t0: jax.Array
+    h: jax.Array
+    q0: jax.Array  # (n,)
+    p0: jax.Array  # (n,)
+    lam1: jax.Array  # (m,) Λ_1, the start multiplier
+    args: Any
+
+
+class Stages(NamedTuple):
+    """Stage values and slopes of a solved (or guessed) step."""
+
+    Q: jax.Array  # (s, n)
+    P: jax.Array  # (s, n)
+    Lam: jax.Array  # (s, m)
+    V: jax.Array  # (s, n) f at the stages
+    W: jax.Array  # (s, n) g at the stages
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where ``Q_2..Q_s``, ``P_1..P_s`` and ``Z_2..Z_s`` sit in the unknown vector x (static)."""
+
+    s: int
+    n: int
+    m: int
+
+    @property
+    def size(self) -> int:
+        return (2 * self.s - 1) * self.n + (self.s - 1) * self.m
+
+    def unpack(self, x, params: StageParams):
+        """``x -> (Q, P, Z)`` with ``Q_1 = q_0`` and ``Z_1 = h Λ_1`` filled in."""
+        s, n, m = self.s, self.n, self.m
+        i1 = (s - 1) * n
+        i2 = i1 + s * n
+        Q = jnp.concatenate([params.q0[None], x[:i1].reshape(s - 1, n)])
+        P = x[i1:i2].reshape(s, n)
+        Z = jnp.concatenate([(params.h * params.lam1)[None], x[i2:].reshape(s - 1, m)])
+        return Q, P, Z
+
+    @staticmethod
+    def pack(Q, P, Z):
+        """``(Q, P, Z) -> x`` (the first rows of Q and Z are not unknowns)."""
+        return jnp.concatenate([Q[1:].ravel(), P.ravel(), Z[1:].ravel()])
+
+
+def _coefficients(pair: LobattoPair, dtype):
+    return (jnp.asarray(pair.a, dtype), jnp.asarray(pair.a_hat, dtype), jnp.asarray(pair.c, dtype))
+
+
+def tableau_product(coef: np.ndarray, x):
+    """``coef @ x`` for a constant coefficient matrix ``coef`` (k, s) and stage values x (s, ...).
+
+    Written out as a sum over the stages with the coefficients as scalar constants, skipping
+    structural zeros (IIIA's first row, IIIB's last column): XLA fuses this with the
+    surrounding arithmetic, where a tiny ``dot`` would be a separate kernel (on CPU, the
+    per-kernel overhead of a 5x5 product is far larger than its arithmetic).
+    """
+    rows = []
+    for i in range(coef.shape[0]):
+        terms = [float(coef[i, j]) * x[j] for j in range(coef.shape[1]) if coef[i, j] != 0.0]
+        rows.append(functools.reduce(jnp.add, terms) if terms else jnp.zeros_like(x[0]))
+    return jnp.stack(rows)
+
+
+def _fields(problem, t, Q, P, Lam, args):
+    """``V_j = f(t_j, Q_j, P_j)``, ``W_j = g(t_j, Q_j, P_j, Λ_j)`` for all stages at once."""
+    return jax.vmap(lambda tj, q, p, lam: vector_field(problem, tj, q, p, lam, args))(t, Q, P, Lam)
+
+
+def stage_values(problem, pair: LobattoPair, layout: Layout, x, params: StageParams) -> Stages:
+    """The stages ``(Q, P, Λ)`` encoded in x and their slopes ``(V, W)``."""
+    Q, P, Z = layout.unpack(x, params)
+    lam = Z / params.h
+    t = params.t0 + jnp.asarray(pair.c, x.dtype) * params.h
+    V, W = _fields(problem, t, Q, P, lam, params.args)
+    return Stages(Q, P, lam, V, W)
+
+
+def _rows(pair: LobattoPair, params: StageParams, st: Stages, phi_values):
+    """Rows (1), (2) and (3), given the stage slopes and ``φ(t_i, Q_i, p̃_i)``."""
+    h = params.h
+    r_q = st.Q[1:] - params.q0 - h * tableau_product(pair.a[1:], st.V)  # (1)
+    r_p = st.P - params.p0 - h * tableau_product(pair.a_hat, st.W)  # (2)
+    return jnp.concatenate([r_q.ravel(), r_p.ravel(), phi_values.ravel()])
+
+
+def _p_tilde(pair: LobattoPair, params: StageParams, W):
+    """``p̃_i = p_0 + h Σ_j a_ij W_j`` for i = 2..s (the IIIA momenta of row (3))."""
+    return params.p0 + params.h * tableau_product(pair.a[1:], W)
+
+
+def stage_residual(problem, pair: LobattoPair, layout: Layout, x, params: StageParams):
+    """The residual of rows (1)-(3) at x: one fused evaluation of f, g (all stages) and φ."""
+    st = stage_values(problem, pair, layout, x, params)
+    t = params.t0 + jnp.asarray(pair.c[1:], x.dtype) * params.h
+    phi = jax.vmap(lambda ti, q, p: problem.phi(ti, q, p, params.args))(t, st.Q[1:], _p_tilde(pair, params, st.W))
+    return _rows(pair, params, st, phi)
+
+
+def stage_jacobian(problem, pair: LobattoPair, layout: Layout, x, params: StageParams):
+    """``(residual, ∂residual/∂x)`` at x, assembled from per-stage blocks.
+
+    One forward-mode pass per stage with ``2n + m`` tangents for ``(f, g)`` and ``2n`` for φ,
+    instead of the ``(2s-1) n + (s-1) m`` tangents (each running all s stages) of
+    ``jax.jacfwd`` of the whole residual; :func:`assemble_jacobian` places the blocks.
+    """
+    Q, P, Z = layout.unpack(x, params)
+    h, args = params.h, params.args
+    lam = Z / h
+    c = jnp.asarray(pair.c, x.dtype)
+    t = params.t0 + c * h
+
+    def field_blocks(tj, q, p, lj):
+        def field(qq, pp, ll):
+            v, w = vector_field(problem, tj, qq, pp, ll, args)
+            return (v, w), (v, w)
+
+        return jax.jacfwd(field, argnums=(0, 1, 2), has_aux=True)(q, p, lj)
+
+    ((fq, fp, _), (gq, gp, gl)), (V, W) = jax.vmap(field_blocks)(t, Q, P, lam)
+
+    def constraint_blocks(ti, q, p):
+        def con(qq, pp):
+            r = problem.phi(ti, qq, pp, args)
+            return r, r
+
+        return jax.jacfwd(con, argnums=(0, 1), has_aux=True)(q, p)
+
+    (phi_q, phi_p), phi = jax.vmap(constraint_blocks)(t[1:], Q[1:], _p_tilde(pair, params, W))
+    st = Stages(Q, P, lam, V, W)
+    jac = assemble_jacobian(pair, h, fq, fp, gq, gp, gl, phi_q, phi_p)
+    return _rows(pair, params, st, phi), jac
+
+
+def stage_jacobian_autodiff(problem, pair: LobattoPair, layout: Layout, x, params: StageParams):
+    """``(residual, ∂residual/∂x)`` by ``jax.jacfwd`` of the whole residual (the reference for
+    :func:`stage_jacobian`, and the option ``jacobian="autodiff"``)."""
+
+    def both(y):
+        r = stage_residual(problem, pair, layout, y, params)
+        return r, r
+
+    jac, r = jax.jacfwd(both, has_aux=True)(x)
+    return r, jac
+
+
+def assemble_jacobian(pair: LobattoPair, h, fq, fp, gq, gp, gl, phi_q, phi_p):
+    r"""The Jacobian of rows (1)-(3) with respect to ``(Q_2..Q_s, P_1..P_s, Z_2..Z_s)``.
+
+    With ``Z_k = h Λ_k``, per-stage blocks ``F_x = ∂f/∂x``, ``G_x = ∂g/∂x`` at stage k and
+    ``Φ_x = ∂φ/∂x`` at ``(Q_i, p̃_i)``:
+
+    * (1) ``r_q,i``: ``δ_ik I - h a_ik F_q``, ``-h a_ik F_p``, 0;
+    * (2) ``r_p,i``: ``-h â_ik G_q``, ``δ_ik I - h â_ik G_p``, ``-â_ik G_λ``;
+    * (3) ``r_φ,i``: ``δ_ik Φ_q + h a_ik Φ_p G_q``, ``h a_ik Φ_p G_p``, ``a_ik Φ_p G_λ``.
+    """
+    s, n = fq.shape[0], fq.shape[1]
+    dtype = fq.dtype
+    a, a_hat, _ = _coefficients(pair, dtype)
+    eye_n = jnp.eye(n, dtype=dtype)
+    eye_s = jnp.eye(s, dtype=dtype)
+    a1 = a[1:]
+
+    def kron(coef, blocks):  # (rows, cols) coefficients times per-column blocks (cols, x, y)
+        return jnp.einsum("ik,kab->iakb", coef, blocks)
+
+    def flat(block):
+        r, x, c, y = block.shape
+        return block.reshape(r * x, c * y)
+
+    def through_phi(blocks):  # Φ_p,i @ block_k for rows i = 2..s, columns k
+        return jnp.einsum("ica,kab->ickb", phi_p, blocks)
+
+    m = gl.shape[2]
+    rq_q = jnp.einsum("ik,ab->iakb", eye_s[1:, 1:], eye_n) - h * kron(a1[:, 1:], fq[1:])
+    rq_p = -h * kron(a1, fp)
+    rq_z = jnp.zeros((s - 1, n, s - 1, m), dtype)
+    rp_q = -h * kron(a_hat[:, 1:], gq[1:])
+    rp_p = jnp.einsum("ik,ab->iakb", eye_s, eye_n) - h * kron(a_hat, gp)
+    rp_z = -kron(a_hat[:, 1:], gl[1:])
+    rf_q = jnp.einsum("ik,icb->ickb", eye_s[1:, 1:], phi_q) + h * a1[:, None, 1:, None] * through_phi(gq[1:])
+    rf_p = h * a1[:, None, :, None] * through_phi(gp)
+    rf_z = a1[:, None, 1:, None] * through_phi(gl[1:])
+    rows = [[rq_q, rq_p, rq_z], [rp_q, rp_p, rp_z], [rf_q, rf_p, rf_z]]
+    return jnp.concatenate([jnp.concatenate([flat(b) for b in row], axis=1) for row in rows], axis=0)
+
+
+def step_values(pair: LobattoPair, params: StageParams, st: Stages):
+    """Row (4): ``q_1 = Q_s``, ``p_1 = p_0 + h Σ_j b_j W_j``, ``λ_1 = Λ_s``."""
+    return st.Q[-1], params.p0 + params.h * tableau_product(pair.b[None], st.W)[0], st.Lam[-1]
+
+
+def extrapolation_gain(pair: LobattoPair) -> float:
+    """``max_i Σ_j |l_j(1 + c_i)|``: how much extrapolating a stage polynomial by one step of
+    the same size amplifies its values (grows quickly with s)."""
+    return float(np.max(np.sum(np.abs(lagrange_basis(pair.c, 1.0 + pair.c)), axis=1)))
+
+
+def predict_stages(pair: LobattoPair, layout: Layout, params: StageParams, slopes, correction, h_prev):
+    r"""Newton's starting point from the previous step's stage polynomials, evaluated at *times*.
+
+    The previous step (size ``h_prev``, ending at ``t_0``) had slopes ``V, W`` and multipliers
+    ``Λ`` at ``t_0 - h_prev + c_j h_prev``; their interpolating polynomials are evaluated at
+    the new stage times ``t_0 + c_i h``, i.e. at ``τ_i = 1 + c_i h / h_prev`` in the previous
+    step's scaled time, corrected by ``correction`` (what this extrapolation missed at the
+    previous step: the IIIB stages deviate from a smooth polynomial by O(h^(s-1)) in a pattern
+    that varies smoothly from step to step), and the stages rebuilt from the *new* start:
+    ``Q = q_0 + h A V``, ``P = p_0 + h Â W``.
+
+    Returns ``(x0, plain)``: the packed guess and the uncorrected extrapolation (whose error
+    becomes the next correction).
+    """
+    tau = 1.0 + jnp.asarray(pair.c, params.q0.dtype) * (params.h / h_prev)
+    basis = lagrange_basis(pair.c, tau)
+    plain = tuple(jnp.sum(basis[:, :, None] * v[None], axis=1) for v in slopes)
+    V, W, Lam = (x + d for x, d in zip(plain, correction))
+    Q = params.q0 + params.h * tableau_product(pair.a, V)
+    x0 = layout.pack(Q, params.p0 + params.h * tableau_product(pair.a_hat, W), params.h * Lam)
+    return x0, plain
+
+
+def constant_stages(layout: Layout, params: StageParams):
+    """The trivial guess: every stage equal to ``(q_0, p_0, Λ_1)``."""
+    s, n, m = layout.s, layout.n, layout.m
+    return layout.pack(
+        jnp.broadcast_to(params.q0, (s, n)),
+        jnp.broadcast_to(params.p0, (s, n)),
+        jnp.broadcast_to(params.h * params.lam1, (s, m)),
+    )

@@ -1,0 +1,88 @@
+"""The compiled loop (lobattodae._loop): integrate's contract (shapes, statuses, NaN rows after a
+failure, also under vmap), the constant step-size controller, and chunked runs equal to one."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import lobattodae as L
+from lobattodae._loop import ConstantStepSize, init_compiled, run_compiled
+from lobattodae.examples import get_example
+
+
+@pytest.fixture(scope="module")
+def knife():
+    return get_example("knife-edge")
+
+
+def _stiff_particle():
+    return L.NonholonomicSystem(
+        lambda t, q, p, a: 0.5 * p @ p + a * q[0] ** 4,
+        lambda t, q, a: jnp.array([[-q[1], 0.0, 1.0]]),
+    )
+
+
+def test_integrate_shapes_and_success(knife):
+    m = L.LobattoIIIAIIIB(stages=3)
+    res = L.integrate(knife.problem, m, 0.0, 0.05, 40, knife.q0, knife.p0, knife.lam0, knife.args)
+    q, p, lam, status = res  # unpacks as before
+    assert isinstance(res, L.IntegrateResult)
+    assert q.shape == (41, 3) and p.shape == (41, 3) and lam.shape == (41, 1) and int(status) == 0
+    sol = L.solve(knife.problem, m, (0.0, 2.0), knife.q0, knife.p0, n_steps=40, args=knife.args)
+    np.testing.assert_allclose(q, sol.q, rtol=0, atol=1e-14)
+
+
+def test_integrate_after_a_failed_step_returns_nan_rows_and_the_status():
+    prob = _stiff_particle()
+    q0, p0 = np.zeros(3), np.array([1.0, 1.0, 0.0])
+    m = L.LobattoIIIAIIIB(stages=2)
+    lam0 = np.zeros(1)
+    q, p, lam, status = L.integrate(prob, m, 0.0, 0.3, 20, q0, p0, lam0, 100.0)
+    assert int(status) in (L.Result.MAX_ITERATIONS, L.Result.DIVERGED, L.Result.NONFINITE)
+    bad = np.flatnonzero(~np.all(np.isfinite(np.asarray(q)), axis=1))
+    assert bad.size and np.all(np.isnan(np.asarray(q)[bad[0]:]))
+    assert np.all(np.isfinite(np.asarray(q)[: bad[0]]))
+    # under vmap: a good and a failing trajectory side by side keep their own outcome
+    batch = jax.vmap(lambda a: L.integrate(prob, m, 0.0, 0.3, 20, q0, p0, lam0, a))(jnp.asarray([0.0, 100.0]))
+    assert int(batch.status[0]) == 0 and np.all(np.isfinite(np.asarray(batch.q[0])))
+    assert int(batch.status[1]) == int(status)
+    np.testing.assert_array_equal(np.isnan(np.asarray(batch.q[1])), np.isnan(np.asarray(q)))
+
+
+def test_integrate_rejects_a_bad_step_count(knife):
+    m = L.LobattoIIIAIIIB(stages=2)
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(L.LobattoDAEInputError, match="n_steps must be a positive integer"):
+            L.integrate(knife.problem, m, 0.0, 0.1, bad, knife.q0, knife.p0, knife.lam0, knife.args)
+
+
+def test_constant_controller_lands_exactly_on_t1():
+    c = ConstantStepSize()
+    st = c.init(jnp.asarray(0.1), jnp.asarray(0.7), 3)
+    times = []
+    while not bool(c.done(st)):
+        t, h = c.proposal(st)
+        times.append(float(t))
+        _, st = c.adapt(st, jnp.asarray(True))
+    assert float(c.time(st)) == 0.7
+    np.testing.assert_allclose(times, [0.1, 0.3, 0.5], rtol=1e-15)
+    _, st2 = c.adapt(st, jnp.asarray(False))
+    assert int(st2.k) == int(st.k)  # a failed step does not advance
+
+
+def test_chunks_give_the_same_numbers_as_one_run(knife):
+    m = L.LobattoIIIAIIIB(stages=3)
+    c = ConstantStepSize()
+    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+    state = init_compiled(knife.problem, m, c, f64(0.0), f64(3.0), 60, f64(knife.q0), f64(knife.p0), f64(knife.lam0),
+                          knife.args)
+    whole, rec, n = run_compiled(knife.problem, m, c, state, knife.args, 64)
+    assert int(n) == 60 and np.all(np.isnan(np.asarray(rec.q[60:])))
+    part = state
+    rows = []
+    for _ in range(4):
+        part, r, k = run_compiled(knife.problem, m, c, part, knife.args, 16)
+        rows.append(np.asarray(r.q)[: int(k)])
+    np.testing.assert_array_equal(np.concatenate(rows), np.asarray(rec.q)[:60])
+    np.testing.assert_array_equal(np.asarray(part.q), np.asarray(whole.q))

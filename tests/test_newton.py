@@ -1,0 +1,106 @@
+"""The simplified Newton solver (lobattodae._newton): convergence, result codes, Jacobian reuse,
+the stopping predicates, and the inverse it keeps."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import lobattodae  # noqa: F401  (float64)
+from lobattodae import _newton as nw
+from lobattodae._results import Result
+
+
+def _system(x, c):
+    """A small nonlinear system with the root x = (1, 2) for c = 1: x0² - c = 0, x0 x1 - 2 = 0."""
+    return jnp.array([x[0] ** 2 - c, x[0] * x[1] - 2.0])
+
+
+def _jac(x, c):
+    return _system(x, c), jax.jacfwd(_system)(x, c)
+
+
+def _solve(x0, c=1.0, cache=None, **kw):
+    options = nw.NewtonOptions(**kw)
+    cache = nw.empty_jacobian_cache(2, jnp.float64) if cache is None else cache
+    return jax.jit(lambda x, c, cache: nw.newton_solve(_system, _jac, x, c, cache, options))(jnp.asarray(x0), c, cache)
+
+
+@pytest.mark.parametrize("reuse", [True, False])
+def test_converges_to_the_root(reuse):
+    x, info, cache = _solve([1.3, 1.0], reuse_jacobian=reuse)
+    assert int(info.result) == Result.SUCCESSFUL
+    np.testing.assert_allclose(x, [1.0, 2.0], rtol=1e-14)
+    assert bool(cache.valid) and int(info.n_jacobians) >= 1
+
+
+def test_reused_jacobian_is_not_reevaluated_near_the_solution():
+    _, info, cache = _solve([1.3, 1.0])
+    x, info2, _ = _solve([1.0 + 1e-9, 2.0 - 1e-9], cache=cache)
+    assert int(info2.result) == Result.SUCCESSFUL and int(info2.n_jacobians) == 0
+    np.testing.assert_allclose(x, [1.0, 2.0], rtol=1e-14)
+
+
+def test_a_stale_jacobian_far_away_is_refreshed():
+    _, _, cache = _solve([1.3, 1.0])
+    x, info, _ = _solve([3.0, 0.5], c=9.0, cache=cache)  # root (3, 2/3): the old Jacobian is poor here
+    assert int(info.result) == Result.SUCCESSFUL and int(info.n_jacobians) >= 1
+    np.testing.assert_allclose(x, [3.0, 2.0 / 3.0], rtol=1e-14)
+
+
+def test_nonfinite_values_are_a_failure_not_a_nan_success():
+    x, info, cache = _solve([jnp.nan, 1.0])
+    assert int(info.result) == Result.NONFINITE and not bool(cache.valid)
+
+
+def test_iteration_limit():
+    _, info, cache = _solve([50.0, 1.0], max_iterations=2, reuse_jacobian=False)
+    assert int(info.result) == Result.MAX_ITERATIONS and int(info.iterations) == 2
+    assert not bool(cache.valid)  # a failed solve leaves nothing to reuse
+
+
+def test_divergence_is_detected():
+    def f(x, c):  # no root: x² + 1 = 0 (Newton wanders; increments grow at the sign changes)
+        return jnp.array([x[0] ** 2 + 1.0])
+
+    def j(x, c):
+        return f(x, c), jax.jacfwd(f)(x, c)
+
+    options = nw.NewtonOptions(max_iterations=50, reuse_jacobian=False)
+    _, info, _ = jax.jit(lambda x: nw.newton_solve(f, j, x, 0.0, nw.empty_jacobian_cache(1, jnp.float64), options))(
+        jnp.asarray([0.5])
+    )
+    assert int(info.result) in (Result.DIVERGED, Result.MAX_ITERATIONS)
+    assert int(info.result) != Result.SUCCESSFUL
+
+
+def test_predicates():
+    t, f = jnp.asarray(True), jnp.asarray(False)
+    assert bool(nw.converged(0.5, 0.9, f, f))  # the increment alone is below the tolerance
+    assert bool(nw.converged(50.0, 0.01, t, f))  # θ/(1-θ)·|Δx| ≈ 0.5 ≤ 1
+    assert not bool(nw.converged(50.0, 0.01, t, t))  # stale Jacobian: 10x stricter
+    assert not bool(nw.converged(50.0, 0.01, f, f))  # no rate known yet
+    assert bool(nw.diverged(3.0, f, f)) and not bool(nw.diverged(3.0, f, t))  # only with a fresh Jacobian
+    assert bool(nw.stagnated_at_roundoff(0.95, 10.0, f)) and not bool(nw.stagnated_at_roundoff(0.95, 1e5, f))
+    assert bool(nw.needs_refresh(0.6, 1e6, 2, f, t))  # slow contraction while far from round-off
+    assert not bool(nw.needs_refresh(0.6, 10.0, 2, f, t))  # at round-off the rate is noise
+    assert bool(nw.needs_refresh(0.1, 1e6, nw.REFRESH_ITERATIONS, f, t))  # too many iterations
+
+
+@pytest.mark.parametrize("n", [1, 5, 31, 53])
+def test_inverse_of_a_matrix_that_needs_pivoting(n):
+    rng = np.random.default_rng(n)
+    a = rng.standard_normal((n, n))
+    if n > 1:
+        a[0, 0] = 0.0  # no pivot-free LU
+    inv = nw.inverse(jnp.asarray(a))
+    np.testing.assert_allclose(np.asarray(inv) @ a, np.eye(n), rtol=0, atol=1e-11 * np.linalg.cond(a))
+
+
+def test_options_validate_themselves():
+    with pytest.raises(ValueError, match="tol"):
+        nw.NewtonOptions(tol=0.0)
+    with pytest.raises(ValueError, match="max_iterations"):
+        nw.NewtonOptions(max_iterations=0)
+    with pytest.raises(ValueError, match="reuse_jacobian"):
+        nw.NewtonOptions(reuse_jacobian="yes")
