@@ -73,8 +73,10 @@ def test_user_function_raises():
         raise KeyError("oops")
 
     prob = L.PartitionedDAE(lambda t, q, p, a: p, lambda t, q, p, lam, a: -q, bad_phi)
-    with pytest.raises(L.ShapeError, match="calling phi.*KeyError"):
+    with pytest.raises(L.ProblemFunctionError, match="calling phi.*KeyError.*problem's function") as info:
         L.solve(prob, L.LobattoIIIAIIIB(stages=2), (0, 1), np.zeros(3), np.zeros(3), n_steps=2)
+    assert isinstance(info.value.__cause__, KeyError) and isinstance(info.value, L.LobattoDAEInputError)
+    assert not isinstance(info.value, L.ShapeError)
 
 
 def test_inconsistent_initial_values(particle):

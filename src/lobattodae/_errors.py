@@ -12,6 +12,7 @@ __all__ = [
     "LobattoDAEInputError",
     "ShapeError",
     "InconsistentInitialValuesError",
+    "ProblemFunctionError",
     "SingularConstraintError",
     "SolverError",
     "NewtonFailure",
@@ -24,6 +25,11 @@ class LobattoDAEInputError(ValueError):
 
 class ShapeError(LobattoDAEInputError):
     """An array has the wrong shape or dtype, or a user function returned one."""
+
+
+class ProblemFunctionError(LobattoDAEInputError):
+    """A function of the problem (f, g, φ, H, μ, M, V) raised an exception when called; the
+    original exception is chained as ``__cause__``."""
 
 
 class InconsistentInitialValuesError(LobattoDAEInputError):

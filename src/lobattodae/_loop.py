@@ -119,16 +119,27 @@ def init_state(problem, method: LobattoIIIAIIIB, controller, t0, t1, n, q0, p0, 
     )
 
 
-def _empty_records(state: State, length: int) -> Record:
-    dtype = state.q.dtype
-    nan = functools.partial(jnp.full, fill_value=jnp.nan, dtype=dtype)
-    n, m = state.q.shape[-1], state.lam.shape[-1]
-    izero = functools.partial(jnp.zeros, dtype=jnp.int32)
-    return Record(
-        t=nan((length,)), q=nan((length, n)), p=nan((length, n)), lam=nan((length, m)),
-        iterations=izero((length,)), n_jacobians=izero((length,)), residual_norm=nan((length,)),
-        constraint=nan((length,)), drift=nan((length,)), resync=jnp.zeros((length,), bool),
-    )
+_FLOAT_FIELDS = ("t", "q", "p", "lam", "residual_norm", "constraint", "drift")
+_INT_FIELDS = ("iterations", "n_jacobians", "resync")
+
+
+def _pack_row(row: Record):
+    """One float and one int32 vector per row: two buffer updates per step instead of ten."""
+    floats = jnp.concatenate([jnp.atleast_1d(getattr(row, f)) for f in _FLOAT_FIELDS])
+    ints = jnp.stack([getattr(row, f).astype(jnp.int32) for f in _INT_FIELDS])
+    return floats, ints
+
+
+def _unpack_rows(floats, ints, n: int, m: int) -> Record:
+    sizes = {"t": 1, "q": n, "p": n, "lam": m, "residual_norm": 1, "constraint": 1, "drift": 1}
+    out, i = {}, 0
+    for f in _FLOAT_FIELDS:
+        block = floats[:, i : i + sizes[f]]
+        out[f] = block if f in ("q", "p", "lam") else block[:, 0]
+        i += sizes[f]
+    for j, f in enumerate(_INT_FIELDS):
+        out[f] = ints[:, j].astype(bool) if f == "resync" else ints[:, j]
+    return Record(**out)
 
 
 def run(problem, method: LobattoIIIAIIIB, controller, state: State, args, length: int):
@@ -159,8 +170,8 @@ def run(problem, method: LobattoIIIAIIIB, controller, state: State, args, length
             t1, q1, p1, lam1, info.iterations, info.n_jacobians, info.residual_norm,
             jnp.max(jnp.abs(problem.phi(t1, q1, p1, args))), info.drift, info.resync,
         )
-        row = jax.tree_util.tree_map(lambda x: jnp.where(accept, x, jnp.nan) if jnp.issubdtype(x.dtype, jnp.floating) else x, row)
-        rec = jax.tree_util.tree_map(lambda buf, x: buf.at[i].set(x), rec, row)
+        floats, ints = _pack_row(row)
+        rec = (rec[0].at[i].set(jnp.where(accept, floats, jnp.nan)), rec[1].at[i].set(ints))
         keep = functools.partial(jnp.where, accept)
         new = State(
             q=keep(q1, st.q), p=keep(p1, st.p), lam=keep(lam1, st.lam),
@@ -173,9 +184,10 @@ def run(problem, method: LobattoIIIAIIIB, controller, state: State, args, length
         )
         return new, rec, i + accept.astype(jnp.int32)
 
-    init = (state, _empty_records(state, length), jnp.asarray(0, jnp.int32))
-    state, rec, i = jax.lax.while_loop(running, body, init)
-    return state, rec, i
+    n, m = state.q.shape[-1], state.lam.shape[-1]
+    buffers = (jnp.full((length, 2 * n + m + 4), jnp.nan, state.q.dtype), jnp.zeros((length, 3), jnp.int32))
+    state, (floats, ints), i = jax.lax.while_loop(running, body, (state, buffers, jnp.asarray(0, jnp.int32)))
+    return state, _unpack_rows(floats, ints, n, m), i
 
 
 @functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "length"))

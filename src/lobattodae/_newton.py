@@ -220,21 +220,23 @@ def fast_start(fn, params, st: NewtonState, options: NewtonOptions) -> NewtonSta
     The rates that the stopping rules need come from the increments of the last iterations.
     """
     k = min(FAST_ITERATIONS, options.max_iterations)
-
-    def plain(_, carry):
-        x, nrm, _prev = carry
-        x, dx, _ = _increment(fn, params, x, st.cache.inverse)
-        return x, _scaled_norm(dx, x, options.tol), nrm
-
     one = jnp.asarray(1.0, st.x.dtype)
-    x, nrm, prev = jax.lax.fori_loop(0, k - 1, plain, (st.x, one, one))
-    x_new, dx, r = _increment(fn, params, x, st.cache.inverse)
+
+    def iteration(_, carry):
+        _, x, _, _, nrm, nrm_prev, _ = carry
+        x_new, dx, r = _increment(fn, params, x, st.cache.inverse)
+        return x, x_new, dx, r, _scaled_norm(dx, x_new, options.tol), nrm, nrm_prev
+
+    zero = jnp.zeros_like(st.x)
+    x_prev, x, dx, r, _, nrm_1, nrm_2 = jax.lax.fori_loop(0, k, iteration, (st.x, st.x, zero, zero, one, one, one))
+    # nrm_1, nrm_2: the increments of the two iterations before the last (the stale-Jacobian
+    # rate test uses the larger of the last two ratios)
     before = st._replace(
-        x=x, k=jnp.asarray(k - 1, jnp.int32), nrm_prev=nrm if k >= 2 else st.nrm_prev,
-        theta_prev=nrm / jnp.where(prev > 0, prev, 1.0) if k >= 3 else one,
+        x=x_prev, k=jnp.asarray(k - 1, jnp.int32), nrm_prev=nrm_1 if k >= 2 else st.nrm_prev,
+        theta_prev=nrm_1 / jnp.where(nrm_2 > 0, nrm_2, 1.0) if k >= 3 else one,
         refresh=jnp.asarray(False), stale=jnp.asarray(k >= 2),
     )
-    return _judge(before, x_new, dx, r, options)
+    return _judge(before, x, dx, r, options)
 
 
 def newton_done(st: NewtonState):
@@ -259,11 +261,17 @@ def newton_solve(
 
     def epoch(st):
         # A fresh Jacobian at the current iterate when asked (at most once per epoch), then
-        # iterations until the solve ends or the contraction asks for another refresh.
+        # iterations until the solve ends or the contraction asks for another refresh (the
+        # first iteration of an epoch always runs: refresh=True marks it as the fresh one).
         cache = jax.lax.cond(st.refresh, lambda x: fresh_jacobian(jac_fn, params, x), lambda x: st.cache, st.x)
         st = st._replace(cache=cache, n_jac=st.n_jac + st.refresh.astype(jnp.int32))
-        st = iterate(st)
-        return jax.lax.while_loop(lambda s: ~newton_done(s) & ~s.refresh, iterate, st)
+        first = (jnp.asarray(True), st)
+        _, out = jax.lax.while_loop(
+            lambda c: c[0] | (~newton_done(c[1]) & ~c[1].refresh),
+            lambda c: (jnp.asarray(False), iterate(c[1])),
+            first,
+        )
+        return out
 
     st = newton_init(x0, cache)
     if options.reuse_jacobian:

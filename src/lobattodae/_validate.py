@@ -12,6 +12,7 @@ import numpy as np
 
 from ._errors import (
     InconsistentInitialValuesError,
+    ProblemFunctionError,
     ShapeError,
     SingularConstraintError,
 )
@@ -59,7 +60,7 @@ def _shape_of(fn, name: str, expected: tuple[int, ...] | None, *a):
     try:
         out = jax.eval_shape(fn, *a)
     except Exception as exc:  # re-raised with context: the user's function failed
-        raise ShapeError(f"calling {name} at the initial point raised {type(exc).__name__}: {exc}") from exc
+        raise _function_error(name, exc) from exc
     if not hasattr(out, "shape"):
         raise ShapeError(f"{name} must return a single array; it returned {type(out).__name__}.")
     if expected is not None and out.shape != expected:
@@ -72,6 +73,13 @@ def _shape_of(fn, name: str, expected: tuple[int, ...] | None, *a):
             "do not cast to float32 inside the problem functions."
         )
     return out
+
+
+def _function_error(name: str, exc: Exception) -> ProblemFunctionError:
+    return ProblemFunctionError(
+        f"calling {name} at the initial point (t0, q0, p0, args) raised {type(exc).__name__}: {exc} "
+        "(the error comes from the problem's function; the original traceback is chained above)."
+    )
 
 
 def _check_output_shapes(problem, n: int, t, q, p, args) -> int:
@@ -233,7 +241,7 @@ def _check_mass_matrix(problem, t0, q0, args) -> None:
     try:
         mm = _mass_matrix_at(problem, t0, q0, args)
     except Exception as exc:  # re-raised with context: the user's function failed
-        raise ShapeError(f"calling mass_matrix(t, q, args) at the initial point raised {type(exc).__name__}: {exc}") from exc
+        raise _function_error("mass_matrix(t, q, args)", exc) from exc
     if mm.shape != (n, n):
         raise ShapeError(f"mass_matrix(t, q, args) must return an array of shape {(n, n)}; it returned shape {mm.shape}.")
     mm = np.asarray(mm, np.float64)
