@@ -26,7 +26,6 @@ from lobattodae.examples import (
     Example,
     chaplygin_sleigh,
     contact_oscillator,
-    default_order,
     falling_rolling_disk,
     get_example,
     knife_edge,
@@ -599,8 +598,8 @@ def test_example_validation():
 
 
 def test_expected_orders():
-    assert [default_order("q", s) for s in (2, 3, 4, 5, 6)] == [2, 4, 6, 8, 10]
-    assert [default_order("lam", s) for s in (2, 3, 4, 5, 6)] == [2, 2, 4, 4, 6]
+    assert [lobattodae.lobatto_pair(s).order()["q"] for s in (2, 3, 4, 5, 6)] == [2, 4, 6, 8, 10]
+    assert [lobattodae.lobatto_pair(s).order()["lam"] for s in (2, 3, 4, 5, 6)] == [2, 2, 4, 4, 6]
     knife = _example("knife-edge")
     assert knife.expected_order("lam", 2) == 2  # exact only at even step indices
     assert knife.expected_order("lam", 3) == 2
@@ -614,8 +613,8 @@ def test_expected_orders():
     assert disk.expected_order("p", 2) == 4 and disk.expected_order("p", 4) == 8
     assert disk.expected_order("p", 3) == 4 and disk.expected_order("q", 4) == 6
     assert _example("sleigh").expected_order("lam", 5) == 4
-    with pytest.raises(ValueError):
-        default_order("x", 3)
+    with pytest.raises(ValueError, match="component must be one of"):
+        disk.expected_order("x", 3)
 
 
 @pytest.mark.parametrize(

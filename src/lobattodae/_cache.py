@@ -32,10 +32,9 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None) -> Path
     """Keep compiled step loops on disk, so that a new process skips XLA compilation.
 
     A ``solve`` compiles its step loop on the first call for each problem, method and shape
-    (1–5 s on a 2-core CPU, most of it XLA compilation); later calls in the same process reuse
-    it. With the cache on, a *new* process loads the executable from disk instead: measured on
-    the knife edge (s = 3) 2.1 s → 0.8 s for the first call, on the falling disk 5.0 s → 1.1 s
-    (what remains is tracing). This switches on JAX's persistent compilation cache for the
+    (seconds on a small CPU, most of it XLA compilation; ``benchmarks/RESULTS.md``); later
+    calls in the same process reuse it. With the cache on, a *new* process loads the
+    executable from disk instead (what remains is tracing). This switches on JAX's persistent compilation cache for the
     whole process (``jax_compilation_cache_dir``), for every entry however fast it compiled.
     The ``lobattodae`` command line uses it unless ``LOBATTODAE_NO_CACHE=1``; ``import
     lobattodae`` calls it when ``LOBATTODAE_CACHE_DIR`` is set (no code change needed).

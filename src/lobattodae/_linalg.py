@@ -4,9 +4,7 @@ XLA:CPU runs ``jnp.linalg.solve`` as a LAPACK call per (batched) system: for a 5
 matrix that call, not the arithmetic, dominates a stage evaluation. Up to
 :data:`UNROLL_MAX` unknowns the elimination is written out column by column instead, which
 XLA fuses with the surrounding arithmetic (and differentiates and vmaps like any other
-expression). Measured on the falling disk (n = 5, s = 3, 2-core CPU, one compiled loop of
-1000 steps): 119–150 µs per step with LAPACK, 71–76 µs with this; element-wise Cholesky
-gave 80–97 µs and a larger program (compile 6–8 s instead of 6 s; LAPACK 4.6–4.9 s).
+expression); the measurements behind this choice are in ``benchmarks/RESULTS.md``.
 """
 
 from __future__ import annotations

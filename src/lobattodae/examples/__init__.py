@@ -6,7 +6,7 @@ initial values, first integrals and, where known, exact solutions.
 >>> q, p, lam = ex.exact(ex.t_end)
 """
 
-from ._base import Example, default_order
+from ._base import Example
 from ._contact import ContactParams, contact_oscillator
 from ._knife_edge import KnifeEdgeParams, knife_edge
 from ._particle import ParticleParams, nonholonomic_particle
@@ -31,7 +31,6 @@ __all__ = [
     "VerticalDiskParams",
     "chaplygin_sleigh",
     "contact_oscillator",
-    "default_order",
     "falling_rolling_disk",
     "get_example",
     "knife_edge",

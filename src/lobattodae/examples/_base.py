@@ -13,9 +13,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._tableau import lobatto_pair
 from .._problem import consistent_lambda, hidden_constraint
 
-__all__ = ["Example", "default_order", "COMPONENTS"]
+__all__ = ["Example", "COMPONENTS"]
 
 #: Solution components whose convergence orders are tracked.
 COMPONENTS = ("q", "p", "lam")
@@ -25,32 +26,6 @@ COMPONENTS = ("q", "p", "lam")
 #: degree 39); panels are short compared with the distance to the nearest complex
 #: singularity of the integrand, so the rule is accurate to round-off.
 GAUSS_NODES = 20
-
-
-def default_order(component: str, s: int) -> int:
-    """The global order the theory promises for the s-stage Lobatto IIIA-IIIB pair.
-
-    ``q`` and ``p``: ``2s - 2``; ``lam``: ``s`` for even ``s``, ``s - 1`` for odd ``s``
-    (DESIGN.md, section 3).
-
-    Parameters
-    ----------
-    component : {"q", "p", "lam"}
-    s : int
-        Number of stages, ``s >= 2``.
-
-    Returns
-    -------
-    int
-    """
-    if component not in COMPONENTS:
-        raise ValueError(f"component must be one of {COMPONENTS}; got {component!r}")
-    if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 2:
-        raise ValueError(f"s must be an integer >= 2; got {s!r}")
-    s = int(s)
-    if component in ("q", "p"):
-        return 2 * s - 2
-    return s if s % 2 == 0 else s - 1
 
 
 def _vector(x: Any, name: str) -> np.ndarray:
@@ -96,7 +71,7 @@ class Example:
     notes : str
         Free-form remarks (known superconvergence, suitable uses).
     expected_order_overrides : Mapping[str, Mapping[int, float or None]]
-        Known deviations from :func:`default_order`, per component (``"q"``, ``"p"``,
+        Known deviations from the proven orders (``LobattoPair.order()``), per component (``"q"``, ``"p"``,
         ``"lam"``) and number of stages ``s``, for the error measured as the maximum over
         all step points of a constant-step run over ``t_span``: a number is the (higher)
         order observed, ``None`` means the component is exact up to round-off for that
@@ -169,7 +144,7 @@ class Example:
                 )
             checked = {}
             for s, order in dict(table).items():
-                default_order(comp, s)  # validates s
+                lobatto_pair(s)  # validates s
                 if order is not None and not (isinstance(order, (int, float)) and order > 0):
                     raise ValueError(
                         f"Example {self.name!r}: order override for {comp}, s={s} must be "
@@ -208,10 +183,12 @@ class Example:
     def expected_order(self, component: str, s: int) -> float | None:
         """The order expected for ``component`` with the s-stage pair on this example.
 
-        :func:`default_order` unless ``expected_order_overrides`` says otherwise;
+        the method's proven order (``LobattoPair.order()``) unless ``expected_order_overrides`` says otherwise;
         ``None`` means "exact up to round-off, no order measurable".
         """
-        default = default_order(component, s)
+        if component not in COMPONENTS:
+            raise ValueError(f"component must be one of {COMPONENTS}; got {component!r}")
+        default = lobatto_pair(s).order()[component]
         table = self.expected_order_overrides.get(component, {})
         return table.get(int(s), default)
 
