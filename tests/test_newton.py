@@ -83,7 +83,8 @@ def test_predicates():
     assert bool(nw.diverged(3.0, f, f)) and not bool(nw.diverged(3.0, f, t))  # only with a fresh Jacobian
     assert bool(nw.stagnated_at_roundoff(0.95, 10.0, f)) and not bool(nw.stagnated_at_roundoff(0.95, 1e5, f))
     assert bool(nw.needs_refresh(0.6, 1e6, 2, f, t))  # slow contraction while far from round-off
-    assert not bool(nw.needs_refresh(0.6, 10.0, 2, f, t))  # at round-off the rate is noise
+    assert not bool(nw.needs_refresh(0.6, 5.0, 2, f, t))  # at round-off the rate is noise
+    assert bool(nw.needs_refresh(0.6, 100.0, 2, f, t))  # 1e-12: slow, not yet round-off
     assert bool(nw.needs_refresh(0.1, 1e6, nw.REFRESH_ITERATIONS, f, t))  # too many iterations
 
 

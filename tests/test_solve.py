@@ -249,3 +249,12 @@ def test_partitioned_dae_with_nonlinear_lambda():
     r = L.hidden_constraint(prob, 0.0, jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(sol.lam[0]))
     assert float(jnp.max(jnp.abs(r))) < 1e-13
     assert np.max(sol.stats["constraint_residual"]) < 1e-13
+
+
+def test_small_steps_do_not_stall_newton():
+    """Regression: with a long-reused Jacobian, increments just above round-off contracted
+    slowly and the iteration ran into its limit (particle, s = 3, h = 60/24576). A reused
+    Jacobian that contracts slowly above round-off is refreshed."""
+    ex = get_example("particle")
+    sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 6.0), ex.q0, ex.p0, n_steps=2458, args=ex.args)
+    assert sol.success and np.max(sol.stats["newton_iterations"]) <= 10

@@ -30,12 +30,16 @@ __all__ = ["JacobianCache", "NewtonInfo", "NewtonOptions", "empty_jacobian_cache
 #: as much as several iterations, and a stale one often converges superlinearly on the nearly
 #: linear parts of the stage system, so a single ratio of increments predicts little).
 THETA_REFRESH = 0.5
-REFRESH_ITERATIONS = 5
+REFRESH_PREDICTED = 4.0
+REFRESH_ITERATIONS = 8
 #: With a fresh Jacobian, a contraction rate above this means the iterates are dominated by
 #: round-off: they are accepted when the increment is below STAGNATION_LEVEL·tol, else the
 #: solve has stagnated.
 THETA_STAGNATION = 0.9
 STAGNATION_LEVEL = 1e3
+#: Scaled increments up to this size are round-off noise (their ratios say nothing about the
+#: contraction of the iteration).
+ROUNDOFF_LEVEL = 10.0
 #: With a fresh Jacobian, increments growing by this factor mean divergence.
 THETA_DIVERGED = 2.0
 #: Iterations with a reused Jacobian before the stopping rules are first evaluated.
@@ -132,11 +136,16 @@ def diverged(theta, first, stale):
 
 
 def needs_refresh(theta, nrm, k, first, stale):
-    """A reused Jacobian contracts too slowly while the increment is still above the round-off
-    level: evaluate a fresh one at the current iterate. (Near round-off the ratio of increments
-    is noise, and refreshing there would cost a Jacobian for nothing.)"""
-    slow = jnp.logical_or(theta >= THETA_REFRESH, k >= REFRESH_ITERATIONS)
-    return jnp.logical_and(jnp.logical_and(stale, ~first), jnp.logical_and(slow, nrm > STAGNATION_LEVEL))
+    """A reused Jacobian is too poor: evaluate a fresh one at the current iterate.
+
+    Above round-off (below it the ratio of increments is noise): when it contracts slower than
+    THETA_REFRESH, or when at its rate the increment would need more than REFRESH_PREDICTED
+    further iterations to reach the tolerance (a fresh Jacobian costs about as much); and in
+    any case after REFRESH_ITERATIONS iterations.
+    """
+    remaining = jnp.log(jnp.maximum(nrm, 1.0)) / -jnp.log(jnp.clip(theta, 1e-300, 0.999))
+    slow = jnp.logical_and(nrm > ROUNDOFF_LEVEL, jnp.logical_or(theta >= THETA_REFRESH, remaining > REFRESH_PREDICTED))
+    return jnp.logical_and(jnp.logical_and(stale, ~first), jnp.logical_or(slow, k >= REFRESH_ITERATIONS))
 
 
 # -- one iteration ----------------------------------------------------------------------------
