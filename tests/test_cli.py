@@ -1,27 +1,31 @@
 """The command-line interface end to end: every command, its files, and bad arguments.
 
-``main`` is called in-process (so compilations are shared between tests); one test runs
-``python -m lobattodae`` in a subprocess to check the module entry point.
+``main`` is called in-process (so compilations are shared between tests); a few tests run
+``python -m lobattodae`` in a subprocess: the module entry point, the persistent compilation
+cache, and SIGTERM to a running integration.
 """
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 
 import lobattodae as L
+from lobattodae import _cli
 from lobattodae._cli import DEMO_EXAMPLE, build_parser, main
+from lobattodae._loop import CHUNK as RUN_CHUNK
 from lobattodae.examples import EXAMPLES, get_example, list_examples
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 RUN_STAGES = 3
 RUN_STEPS = 50
-#: ``run`` always compiles chunks of this length; the direct solves below use the same so
-#: that they reuse the compilation.
-RUN_CHUNK = 4096
+# ``run`` compiles chunks of solve's default length (RUN_CHUNK); the direct solves below use
+# the same so that they reuse the compilation.
 
 
 def _is_png(path):
@@ -190,11 +194,35 @@ def test_convergence_prints_table(convergence_files):
     assert abs(float(cols[0]) - 4) <= 0.3 and cols[1] == "4"
 
 
+def test_convergence_single_step_count_prints_na_not_exact(convergence_files, capsys):
+    """One step count: no order can be fitted (NaN); the table says n/a, never "exact".
+    (s = 2 with 256 steps reuses the compilation of the study above.)"""
+    code, out, err = _main(["convergence", "--example", "knife-edge", "--stages", "2", "--n-steps", "256"], capsys)
+    assert code == 0, err
+    row = next(line for line in out.splitlines() if line.strip().startswith("2 |"))
+    assert "exact" not in row, row
+    assert row.count("n/a") == 3, row
+    assert "n/a: no order can be fitted" in out and "--n-steps" in out
+
+
+def test_convergence_order_text_exact_only_at_the_round_off_floor():
+    # a fitted order
+    assert _cli._order_text(3.987, [1e-3, 1e-4], 1e-13) == "3.99"
+    # NaN because every error is at round-off: the component is exact
+    assert _cli._order_text(float("nan"), [1e-16, 2e-16], 1e-13) == "exact"
+    assert _cli._order_text(float("nan"), [1e-16], 1e-13) == "exact"
+    # NaN for want of points above the floor: not "exact"
+    assert _cli._order_text(float("nan"), [1e-4], 1e-13) == "n/a"
+    assert _cli._order_text(float("nan"), [1e-4, 1e-16], 1e-13) == "n/a"
+    # failed runs (NaN errors) are no evidence of exactness
+    assert _cli._order_text(float("nan"), [float("nan"), float("nan")], 1e-13) == "n/a"
+
+
 # ------------------------------------------------------------------------------ run
 def _run_method(stages):
-    """The method ``run`` uses: its ``--lam-start`` default, where the option exists."""
+    """The method ``run`` uses: its ``--lam-start`` default."""
     ns = build_parser().parse_args(["run", "--example", "particle", "--stages", str(stages), "--n-steps", "1"])
-    return L.LobattoIIIAIIIB(stages=stages, lam_start=getattr(ns, "lam_start", "previous"))
+    return L.LobattoIIIAIIIB(stages=stages, lam_start=ns.lam_start)
 
 
 @pytest.fixture(scope="module")
@@ -259,6 +287,9 @@ def test_run_plot_writes_png(tmp_path, capsys):
         assert f"max |{name}(t) - {name}(0)|" in out
     phi_line = next(line for line in out.splitlines() if line.startswith("max ‖φ"))
     assert float(phi_line.split("=")[-1]) <= 1e-12
+    # λ bookkeeping of the default --lam-start auto: no re-synchronisation on this problem
+    assert f"λ re-synchronisations (--lam-start auto): 0 in {RUN_STEPS} steps" in out
+    assert "warning" not in out.lower() and "lam_start" not in out + err
 
 
 def test_run_dt_and_t1(tmp_path, capsys):
@@ -271,6 +302,261 @@ def test_run_dt_and_t1(tmp_path, capsys):
         np.testing.assert_allclose(z["t"], [0.0, 0.25, 0.5, 0.75, 1.0], rtol=0, atol=1e-15)
         assert float(z["h"]) == 0.25
     assert "steps: 4 of 4" in out
+
+
+class _SolveCalled(Exception):
+    """Raised by a stand-in for ``solve``: the CLI got as far as starting the integration."""
+
+
+def _forbid_integration(monkeypatch):
+    """Any integration (``run``, ``convergence``, ``demo``) fails the test."""
+    import lobattodae._convergence
+    import lobattodae._solve
+
+    def no_solve(*args, **kwargs):
+        raise AssertionError("the integration ran although the options should have been refused")
+
+    monkeypatch.setattr(lobattodae._solve, "solve", no_solve)
+    monkeypatch.setattr(lobattodae._convergence, "solve", no_solve)
+
+
+def _capture_solve(monkeypatch):
+    """Replace ``solve`` by a stand-in that raises :class:`_SolveCalled` with its arguments."""
+    import lobattodae._solve
+
+    def fake(problem, method, t_span, q0, p0, **kwargs):
+        raise _SolveCalled(method, kwargs)
+
+    monkeypatch.setattr(lobattodae._solve, "solve", fake)
+
+
+def test_lam_start_choices_and_default(monkeypatch, capsys):
+    parse = build_parser().parse_args
+    assert parse(["run", "--example", "particle", "--n-steps", "5"]).lam_start == "auto"
+    assert L.LobattoIIIAIIIB().lam_start == "auto"  # the CLI's default is the library's
+    _capture_solve(monkeypatch)
+    argv = ["run", "--example", "particle", "--n-steps", "5"]
+    for mode in ("auto", "previous", "consistent"):
+        with pytest.raises(_SolveCalled) as called:
+            main([*argv, "--lam-start", mode])
+        method, _ = called.value.args
+        assert method.lam_start == mode
+    with pytest.raises(_SolveCalled) as called:
+        main(argv)
+    assert called.value.args[0].lam_start == "auto"
+    code, out, err = _main([*argv, "--lam-start", "zero"], capsys)
+    assert code == 2 and "invalid choice: 'zero'" in err and "auto" in err
+
+
+def test_lam_start_help_one_line_per_mode(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "100")
+    code, out, _ = _main(["run", "--help"], capsys)
+    assert code == 0
+    lines = [line.strip() for line in out.splitlines()]
+    for mode in ("auto", "previous", "consistent"):
+        line = next(line for line in lines if line.startswith(f"{mode}:"))
+        assert len(line) > len(mode) + 10, line
+    assert "(default)" in next(line for line in lines if line.startswith("auto:"))
+
+
+def test_run_uses_the_library_progress_bar(monkeypatch):
+    """One progress bar in the project: run passes progress=True (solve's bar) unless
+    --no-progress."""
+    assert not hasattr(_cli, "_DelayedProgress")
+    _capture_solve(monkeypatch)
+    argv = ["run", "--example", "particle", "--n-steps", "5"]
+    with pytest.raises(_SolveCalled) as called:
+        main(argv)
+    assert called.value.args[1]["progress"] is True
+    with pytest.raises(_SolveCalled) as called:
+        main([*argv, "--no-progress"])
+    assert called.value.args[1]["progress"] is False
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["run", "--example", "particle", "--n-steps", "5", "--save", "{d}/sol.npz"], "--save"),
+        (["run", "--example", "particle", "--n-steps", "5", "--save", "{d}/sol.csv"], "--save"),
+        (["run", "--example", "particle", "--n-steps", "5", "--plot", "{d}/diag.png"], "--plot"),
+        (["run", "--example", "particle", "--n-steps", "5", "--checkpoint", "{d}/run.npz"], "--checkpoint"),
+        (["run", "--example", "particle", "--n-steps", "5", "--checkpoint", "{d}/run.npz", "--resume"],
+         "--checkpoint"),
+        (["convergence", "--example", "knife-edge", "--json", "{d}/c.json"], "--json"),
+        (["convergence", "--example", "knife-edge", "--plot", "{d}/c.png"], "--plot"),
+        (["demo", "--stages", "2", "--plot", "{d}/c.png"], "--plot"),
+    ],
+)
+def test_output_file_in_a_missing_directory_refused_before_any_work(argv, option, tmp_path, monkeypatch, capsys):
+    _forbid_integration(monkeypatch)
+    missing = tmp_path / "no" / "such"
+    argv = [a.format(d=missing) for a in argv]
+    path = argv[argv.index(option) + 1]
+    start = time.perf_counter()
+    code, out, err = _main(argv, capsys)
+    assert time.perf_counter() - start < 5
+    assert code == 2, (out, err)
+    assert err.startswith("lobattodae: error:"), err
+    for needle in (option, path, str(missing), "does not exist", "create it first"):
+        assert needle in err, (needle, err)
+    assert len(err.strip().splitlines()) == 1, err  # one line, no traceback
+    assert out == ""
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_output_path_that_is_a_directory_refused(tmp_path, monkeypatch, capsys):
+    _forbid_integration(monkeypatch)
+    (tmp_path / "sol.npz").mkdir()
+    code, out, err = _main(["run", "--example", "particle", "--n-steps", "5", "--save", tmp_path / "sol.npz"], capsys)
+    assert code == 2 and "--save" in err and "is a directory" in err
+
+
+def test_output_file_in_a_read_only_directory_refused(tmp_path, monkeypatch, capsys):
+    """A directory without write permission (simulated: root may write anywhere)."""
+    _forbid_integration(monkeypatch)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if str(p) == str(ro) else real_access(p, mode, **kw))
+    code, out, err = _main(["convergence", "--example", "knife-edge", "--json", ro / "c.json"], capsys)
+    assert code == 2, (out, err)
+    assert "--json" in err and str(ro / "c.json") in err and "not writable" in err
+
+
+def test_run_lam_drift_warning_recommends_the_option(capsys):
+    """The paper's scheme on the Chaplygin sleigh (s = 5, h = 0.1, t = 130): λ leaves its band;
+    run prints the library's warning in the command line's words and recommends
+    --lam-start auto (not the Python API)."""
+    code, out, err = _main(["run", "--example", "sleigh", "--stages", "5", "--n-steps", "1300", "--t1", "130",
+                            "--lam-start", "previous", "--no-progress"], capsys)
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines[0] == "The solver successfully reached the end of the integration interval."
+    excursions = next(line for line in lines if line.startswith("λ excursions out of the drift band"))
+    assert int(excursions.split(":")[1].split(";")[0]) > 0
+    warning = next(line for line in lines if line.startswith("warning: the multiplier λ_k left its normal band"))
+    assert "--lam-start previous" in warning
+    recommendation = next(line for line in lines if line.startswith("recommendation:"))
+    assert "--lam-start auto" in recommendation
+    assert "lam_start" not in out + err  # the Python spelling is not shown
+    assert "RuntimeWarning" not in err  # shown once, in the report
+
+
+def test_split_warning_and_cli_spelling():
+    msg = "The solver successfully reached the end. Warning: λ drifted. Use lam_start='auto' or 'consistent'."
+    head, warning = _cli._split_warning(msg)
+    assert head == "The solver successfully reached the end."
+    assert warning.startswith("λ drifted.")
+    assert _cli._split_warning("done.") == ("done.", None)
+    assert _cli._cli_spelling("With lam_start='previous' and lam_start = \"auto\"") == (
+        "With --lam-start previous and --lam-start auto"
+    )
+
+
+# ------------------------------------------------------------------ interrupts and SIGTERM
+@pytest.fixture
+def restore_signals():
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for sig, handler in saved.items():
+        signal.signal(sig, handler)
+
+
+def test_sigterm_handler_calls_the_installed_sigint_handler(restore_signals):
+    calls = []
+    signal.signal(signal.SIGINT, lambda signum, frame: calls.append((signum, frame)))
+    _cli._sigterm_handler(signal.SIGTERM, None)
+    assert calls == [(signal.SIGTERM, None)]
+    for default in (signal.default_int_handler, signal.SIG_DFL, signal.SIG_IGN):
+        signal.signal(signal.SIGINT, default)
+        with pytest.raises(KeyboardInterrupt):
+            _cli._sigterm_handler(signal.SIGTERM, None)
+
+
+def _run_argv(*extra):
+    return ["run", "--example", "particle", "--n-steps", "5", "--no-progress", *extra]
+
+
+def test_sigterm_during_start_up_one_line_exit_130(monkeypatch, restore_signals, capsys):
+    """SIGTERM before the integration (here: while the example is loaded) stops the program
+    with one line and exit code 130; main restores the SIGTERM handler it found."""
+    import lobattodae.examples
+
+    before = signal.getsignal(signal.SIGTERM)
+
+    def slow_start(name):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler runs (and raises) right away
+        raise AssertionError("SIGTERM did not stop the start-up")
+
+    monkeypatch.setattr(lobattodae.examples, "get_example", slow_start)
+    _forbid_integration(monkeypatch)
+    start = time.perf_counter()
+    code, out, err = _main(_run_argv(), capsys)
+    assert time.perf_counter() - start < 4
+    assert code == 130
+    assert err == "lobattodae: interrupted\n" and out == ""
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_ctrl_c_during_start_up_one_line_exit_130(monkeypatch, capsys):
+    import lobattodae.examples
+
+    def interrupted(name):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(lobattodae.examples, "get_example", interrupted)
+    code, out, err = _main(_run_argv(), capsys)
+    assert code == 130
+    assert err.strip() == "lobattodae: interrupted" and "Traceback" not in err
+
+
+#: A run long enough to be stopped in the middle (particle, s = 3, with the step h = 0.04 of
+#: the runs above: some 30 ms per chunk of RUN_CHUNK steps), checkpointed after every chunk.
+SIGTERM_STEPS = 16 * RUN_CHUNK
+SIGTERM_T1 = SIGTERM_STEPS * 2.0 / RUN_STEPS
+
+
+def test_sigterm_stops_a_run_cleanly_and_resume_finishes_bit_for_bit(tmp_path, capsys):
+    """SIGTERM to `lobattodae run --checkpoint` acts like the first Ctrl-C: the run stops at
+    the end of the chunk, the checkpoint and the prefix are written, exit code 1; `--resume`
+    then reaches the end with the numbers of an uninterrupted run, bit for bit."""
+    ckpt, prefix, final = tmp_path / "run.npz", tmp_path / "prefix.npz", tmp_path / "final.npz"
+    argv = ["run", "--example", "particle", "--stages", str(RUN_STAGES), "--n-steps", str(SIGTERM_STEPS),
+            "--t1", str(SIGTERM_T1), "--checkpoint", str(ckpt), "--checkpoint-every", str(RUN_CHUNK)]
+    proc = subprocess.Popen([sys.executable, "-m", "lobattodae", *argv, "--save", str(prefix)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert ckpt.exists(), "no checkpoint after the first chunk"
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 1, (out, err)
+    assert "Traceback" not in err, err
+    assert out.startswith("Interrupted after "), out
+    assert f"checkpoint: {ckpt} (continue with the same command and --resume)" in out
+    with np.load(prefix) as z:
+        n_done = len(z["t"]) - 1
+        assert int(z["status"]) == int(L.Result.INTERRUPTED)
+        prefix_q = z["q"].copy()
+    assert 0 < n_done < SIGTERM_STEPS and n_done % RUN_CHUNK == 0, n_done  # stopped at a chunk's end
+    # resume in-process (shares the compilation with the uninterrupted reference below)
+    code, out, err = _main([*argv, "--resume", "--no-progress", "--save", final], capsys)
+    assert code == 0, (out, err)
+    assert f"steps: {SIGTERM_STEPS} of {SIGTERM_STEPS}" in out
+    ex = get_example("particle")
+    ref = L.solve(ex.problem, _run_method(RUN_STAGES), (ex.t_span[0], SIGTERM_T1), ex.q0, ex.p0,
+                  n_steps=SIGTERM_STEPS, args=ex.args, chunk_size=RUN_CHUNK)
+    with np.load(final) as z:
+        for key in ("t", "q", "p", "lam"):
+            np.testing.assert_array_equal(z[key], getattr(ref, key), err_msg=key)
+    np.testing.assert_array_equal(prefix_q, ref.q[: n_done + 1])
 
 
 # ----------------------------------------------------------------------------- demo
@@ -313,6 +599,8 @@ def test_demo_defaults():
         (["run", "--example", "particle", "--dt", "0.1", "--n-steps", "5"], ["not allowed with argument"]),
         (["run", "--example", "particle"], ["one of the arguments --dt --n-steps is required"]),
         (["run", "--n-steps", "5"], ["required", "--example"]),
+        (["run", "--example", "particle", "--n-steps", "5", "--lam-start", "zero"],
+         ["--lam-start", "invalid choice", "'zero'", "auto", "previous", "consistent"]),
         (["convergence"], ["required", "--example"]),
         (["tableau"], ["required", "s"]),
         ([], ["required", "command"]),

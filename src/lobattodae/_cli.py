@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import re
 import signal
 import sys
+import threading
 import time
+import warnings
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Sequence
 
@@ -17,9 +21,35 @@ __all__ = ["main"]
 
 DEMO_EXAMPLE = "sleigh"
 
+#: ``run --lam-start``: the start multiplier Λ_1 of each step (``LobattoIIIAIIIB(lam_start=...)``).
+LAM_START_CHOICES = ("auto", "previous", "consistent")
+LAM_START_HELP = (
+    "start multiplier Λ_1 of each step:\n"
+    "auto: paper's scheme, λ re-synced on drift (default)\n"
+    "previous: paper's scheme; symmetric, λ errors can grow\n"
+    "consistent: Λ_1 from hidden constraint; energy drifts"
+)
+
+#: Exit code after Ctrl-C or SIGTERM outside the integration loop (128 + SIGINT, as shells do).
+EXIT_INTERRUPTED = 130
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, but a help text's own line breaks are kept (each line wrapped)."""
+
+    def _split_lines(self, text, width):
+        lines = []
+        for line in text.splitlines():
+            lines.extend(super()._split_lines(line, width) or [""])
+        return lines
+
 
 class _ArgumentParser(argparse.ArgumentParser):
     """argparse that raises instead of exiting, so ``main`` can return the exit code."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         raise _UsageError(f"{self.prog}: error: {message}")
@@ -71,6 +101,22 @@ def _suffix(path: str, allowed: Sequence[str], what: str) -> Path:
     return p
 
 
+def _output_file(path: str | None, allowed: Sequence[str], option: str) -> Path | None:
+    """An output file of a command, checked before any work: its suffix, and that its
+    directory exists and is writable (the library's own check, :func:`~lobattodae._solve.check_writable`)."""
+    if path is None:
+        return None
+    p = _suffix(path, allowed, option)
+    from ._errors import LobattoDAEInputError
+    from ._solve import check_writable
+
+    try:
+        check_writable(str(p), f"{option} file")
+    except LobattoDAEInputError as exc:
+        raise _UsageError(str(exc)) from None
+    return p
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _ArgumentParser(
         prog="lobattodae",
@@ -106,11 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--t1", type=_positive_float, default=None, help="final time (default: the example's)")
     p.add_argument("--plot", default=None, help="PNG file: constraint, invariants and Newton iterations")
     p.add_argument("--save", default=None, help="write the solution to F.npz or F.csv")
-    p.add_argument("--no-progress", action="store_true", help="never show a progress bar")
-    p.add_argument("--lam-start", choices=["previous", "consistent"], default="previous",
-                   help="Λ_1 of each step: 'previous' (the paper's scheme, symmetric; default) or "
-                        "'consistent' (re-solved from the hidden constraint: λ errors cannot grow, "
-                        "but energy drifts on reversible problems)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="never show a progress bar (by default one appears when a run takes more than a second)")
+    p.add_argument("--lam-start", choices=LAM_START_CHOICES, default="auto", help=LAM_START_HELP)
     p.add_argument("--checkpoint", default=None, help="checkpoint file (.npz): written periodically and on Ctrl-C/SIGTERM")
     p.add_argument("--checkpoint-every", type=_positive_int, default=100_000, help="steps between checkpoints")
     p.add_argument("--resume", action="store_true", help="continue from --checkpoint if it exists")
@@ -121,7 +165,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 success, 1 failure, 2 usage error)."""
+    """Entry point; returns the exit code (0 success, 1 failure or a run stopped early,
+    2 usage error, 130 interrupted before or after the integration).
+
+    SIGTERM is handled as Ctrl-C: during an integration both stop it cleanly at the end of
+    the current compiled chunk (checkpoint written, prefix reported, exit code 1); elsewhere
+    (start-up, compilation, writing files) the program stops with one line and exit code 130.
+    """
+    with _sigterm_as_sigint():
+        try:
+            return _main(argv)
+        except KeyboardInterrupt:
+            print("lobattodae: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     try:
         ns = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
@@ -140,6 +199,30 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, RuntimeError) as exc:
         print(f"lobattodae: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
+
+
+def _sigterm_handler(signum, frame):
+    """SIGTERM does what Ctrl-C does at this moment: it calls the SIGINT handler installed now
+    (inside ``solve``, the deferred one: a clean stop at the end of the chunk); with Python's
+    default handler (or none) it raises KeyboardInterrupt."""
+    handler = signal.getsignal(signal.SIGINT)
+    if callable(handler) and handler is not signal.default_int_handler:
+        handler(signum, frame)
+    else:  # SIG_DFL, SIG_IGN (SIGTERM must still stop the program), None, default_int_handler
+        raise KeyboardInterrupt
+
+
+@contextmanager
+def _sigterm_as_sigint():
+    """Install :func:`_sigterm_handler` for the duration of ``main`` (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _sigterm_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _cmd_examples(ns) -> int:
@@ -187,14 +270,57 @@ def _save_plot(axes_fn, path: Path) -> None:
     print(f"wrote {path}")
 
 
+def _order_text(observed: float, errors, floor: float) -> str:
+    """An observed order for the table: ``exact`` only where every error is at the round-off
+    floor (nothing to fit because the component is exact), ``n/a`` where the order is NaN for
+    want of points (fewer than two step counts with errors above the floor, or failed runs)."""
+    if np.isfinite(observed):
+        return f"{observed:.2f}"
+    errors = np.asarray(errors, float)
+    errors = errors[np.isfinite(errors)]
+    if errors.size and np.all(errors <= floor):
+        return "exact"
+    return "n/a"
+
+
+def _convergence_table(study) -> str:
+    """The study's table (as ``ConvergenceStudy.table``), with ``n/a`` for orders that could not
+    be fitted instead of ``exact``."""
+    from ._convergence import COMPONENTS
+
+    lines = [
+        f"Convergence study: {study.name} (errors against the {study.reference} solution)",
+        f"{'s':>3} | {'q obs':>6} {'theory':>6} | {'p obs':>6} {'theory':>6} | "
+        f"{'lam obs':>7} {'theory':>6} | {'max|phi|':>9}",
+        "-" * 74,
+    ]
+    used = set()
+    for s in study.stages:
+        o = {c: _order_text(study.observed[s][c], study.errors[s][c], study.floors[c]) for c in COMPONENTS}
+        e = {c: ("exact" if study.expected[s][c] is None else study.expected[s][c]) for c in COMPONENTS}
+        used.update(o.values())
+        lines.append(
+            f"{s:>3} | {o['q']:>6} {e['q']:>6} | {o['p']:>6} {e['p']:>6} | "
+            f"{o['lam']:>7} {e['lam']:>6} | {study.constraint_residual[s]:9.1e}"
+        )
+    if "n/a" in used:
+        lines.append("n/a: no order can be fitted (fewer than two step counts with errors above round-off); "
+                     "give more --n-steps")
+    if "exact" in used:
+        lines.append("exact: every error is at the round-off floor")
+    if study.notes:
+        lines.append(f"note: {study.notes}")
+    return "\n".join(lines)
+
+
 def _cmd_convergence(ns) -> int:
     from ._plotting import plot_convergence
 
-    plot = _suffix(ns.plot, [".png"], "--plot") if ns.plot else None
-    js = _suffix(ns.json, [".json"], "--json") if ns.json else None
+    plot = _output_file(ns.plot, [".png"], "--plot")
+    js = _output_file(ns.json, [".json"], "--json")
     start = time.perf_counter()
     study = _study(ns.example, ns.stages, ns.n_steps)
-    print(study.table())
+    print(_convergence_table(study))
     print(f"({time.perf_counter() - start:.1f} s including compilation)")
     if js:
         study.to_json(js)
@@ -207,12 +333,12 @@ def _cmd_convergence(ns) -> int:
 def _cmd_demo(ns) -> int:
     from ._plotting import plot_convergence
 
-    plot = _suffix(ns.plot, [".png"], "--plot")
+    plot = _output_file(ns.plot, [".png"], "--plot")
     print("lobattodae demo: the Lobatto IIIA-IIIB pair on a nonlinear nonholonomic problem")
     print("Theory (paper, Corollary): q, p ~ h^(2s-2); λ ~ h^s (s even), h^(s-1) (s odd)\n")
     start = time.perf_counter()
     study = _study(ns.example, ns.stages, None)
-    print(study.table())
+    print(_convergence_table(study))
     worst = max(study.constraint_residual.values())
     print(f"\nmax constraint residual ‖φ(q_k, p_k)‖∞ over all runs: {worst:.1e}")
     print(f"({time.perf_counter() - start:.1f} s including compilation)")
@@ -222,13 +348,15 @@ def _cmd_demo(ns) -> int:
 
 def _cmd_run(ns) -> int:
     from ._diagnostics import invariant_error
+    from ._results import Result
     from ._solve import solve
     from ._stepper import LobattoIIIAIIIB
     from .examples import get_example
 
-    plot = _suffix(ns.plot, [".png"], "--plot") if ns.plot else None
-    save = _suffix(ns.save, [".npz", ".csv"], "--save") if ns.save else None
-    checkpoint = _suffix(ns.checkpoint, [".npz"], "--checkpoint") if ns.checkpoint else None
+    # every option and output path is checked before the work
+    plot = _output_file(ns.plot, [".png"], "--plot")
+    save = _output_file(ns.save, [".npz", ".csv"], "--save")
+    checkpoint = _output_file(ns.checkpoint, [".npz"], "--checkpoint")
     if ns.resume and checkpoint is None:
         raise _UsageError("--resume needs --checkpoint FILE")
     if ns.max_recoveries < 0:
@@ -238,31 +366,32 @@ def _cmd_run(ns) -> int:
     t1 = ns.t1 if ns.t1 is not None else ex.t_span[1]
     if not t1 > t0:
         raise _UsageError(f"--t1 must be larger than the initial time {t0}; got {t1}")
-    progress = None if ns.no_progress else _DelayedProgress()
-    previous = signal.getsignal(signal.SIGTERM)
-    signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
-    try:
+    with warnings.catch_warnings(record=True) as caught:  # reported below, in the command line's words
         sol = solve(
             ex.problem, LobattoIIIAIIIB(stages=ns.stages, lam_start=ns.lam_start), (t0, t1), ex.q0, ex.p0,
             n_steps=ns.n_steps, dt=ns.dt, lam0=ex.lam0, args=ex.args, throw=False,
-            progress=progress or False, max_recoveries=ns.max_recoveries,
+            progress=not ns.no_progress, max_recoveries=ns.max_recoveries,
             checkpoint=checkpoint, checkpoint_every=ns.checkpoint_every if checkpoint else None,
             resume=ns.resume,
         )
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    print(sol.message)
+    message, lam_warning = _split_warning(sol.message)
+    print(message)
     print(f"steps: {len(sol.t) - 1} of {sol.stats['n_steps']}, h = {sol.stats['h']:.6g}, "
           f"time {sol.stats['compile_and_run_time']:.2f} s (including compilation)")
     print(f"max ‖φ(q_k, p_k)‖∞ = {np.max(sol.stats['constraint_residual']):.2e}")
+    _print_lam_bookkeeping(sol, ns.lam_start, lam_warning)
     if sol.stats["recoveries"]:
         print(f"recovered steps (retried as substeps): {sol.stats['recoveries']}")
     if checkpoint:
-        print(f"checkpoint: {checkpoint}")
+        more = " (continue with the same command and --resume)" if sol.status == Result.INTERRUPTED else ""
+        print(f"checkpoint: {checkpoint}{more}")
     print(f"Newton iterations per step: mean {np.mean(sol.stats['newton_iterations']) if len(sol.t) > 1 else 0:.2f}")
     for name, fn in ex.invariants.items():
         err = invariant_error(sol, fn)
         print(f"max |{name}(t) - {name}(0)| = {np.max(np.abs(err)):.2e}")
+    for w in caught:  # other warnings of the run (the λ one is part of the message, printed above)
+        if str(w.message) not in sol.message:
+            print(f"lobattodae: warning: {w.message}", file=sys.stderr)
     if save:
         _save_solution(sol, save)
         print(f"wrote {save}")
@@ -273,30 +402,41 @@ def _cmd_run(ns) -> int:
     return 0 if sol.success else 1
 
 
-def _sigterm_to_interrupt(signum, frame):
-    raise KeyboardInterrupt
+#: ``Solution.message`` appends a warning to the status message after this marker.
+_WARNING_MARKER = " Warning: "
 
 
-class _DelayedProgress:
-    """A progress bar that appears only once a run has taken more than a couple of seconds."""
+def _split_warning(message: str) -> tuple[str, str | None]:
+    """``(status message, warning)`` of a ``Solution.message`` (warning None when there is none)."""
+    head, sep, tail = message.partition(_WARNING_MARKER)
+    return (head, tail) if sep else (message, None)
 
-    def __init__(self, delay: float = 2.0):
-        self.start = time.perf_counter()
-        self.delay = delay
-        self.shown = False
 
-    def __call__(self, done: int, total: int) -> None:
-        el = time.perf_counter() - self.start
-        if el < self.delay and not self.shown:
-            return
-        self.shown = True
-        frac = done / total
-        eta = el / frac * (1 - frac)
-        fill = int(30 * frac)
-        sys.stderr.write(f"\r[{'#' * fill}{'.' * (30 - fill)}] {done}/{total} steps  {el:6.1f}s  eta {eta:6.1f}s")
-        if done >= total:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
+def _cli_spelling(text: str) -> str:
+    """A library message in the command line's words: ``lam_start='auto'`` -> ``--lam-start auto``."""
+    return re.sub(r"lam_start\s*=\s*['\"](\w+)['\"]", r"--lam-start \1", text)
+
+
+def _print_lam_bookkeeping(sol, lam_start: str, warning: str | None) -> None:
+    """λ after a run: re-synchronisations (auto), excursions (previous), the drift warning."""
+    stats = sol.stats
+    drift = np.max(stats["multiplier_drift"]) if len(stats["multiplier_drift"]) else 0.0
+    if lam_start == "auto":
+        print(f"λ re-synchronisations (--lam-start auto): {stats['lam_resets']} in {len(sol.t) - 1} steps; "
+              f"max ‖λ_k − λ(q_k, p_k)‖∞ = {drift:.2e}")
+    elif lam_start == "previous":
+        print(f"λ excursions out of the drift band (--lam-start previous): {stats['lam_excursions']}; "
+              f"max ‖λ_k − λ(q_k, p_k)‖∞ = {drift:.2e}")
+    if warning is None:
+        return
+    if "λ" in warning or "lam_start" in warning or "multiplier" in warning:
+        # the library recommends its Python option; say it with the command line's
+        text = warning.split(" Use lam_start", 1)[0].strip()
+        print(f"warning: {_cli_spelling(text)}")
+        print("recommendation: run again with --lam-start auto (re-synchronises λ with the hidden constraint "
+              "when it drifts), or --lam-start consistent, or a smaller step (--dt / --n-steps)")
+    else:
+        print(f"warning: {_cli_spelling(warning)}")
 
 
 def _save_solution(sol, path: Path) -> None:
