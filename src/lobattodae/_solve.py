@@ -309,6 +309,8 @@ def solve(
         except KeyboardInterrupt:  # a second Ctrl-C, or one outside the main thread's handler
             pass
         was_interrupted = run.done < opt.n and failure is None
+    if isinstance(report, _ProgressBar):
+        report.close()
     if opt.checkpoint and (run.done > last_saved or was_interrupted):
         _save(opt.checkpoint, meta, run)
     elapsed = time.perf_counter() - start
@@ -413,12 +415,16 @@ def _concat(rows: tuple, state: State) -> Record:
 def _deferred_interrupts():
     """Within the block, Ctrl-C (SIGINT) only sets a flag that the chunk loop checks, so an
     interrupt never lands between updating the step count and the state; a second Ctrl-C
-    raises KeyboardInterrupt as usual. Outside the main thread nothing is changed."""
+    raises KeyboardInterrupt as usual. Outside the main thread, or where SIGINT is ignored,
+    nothing is changed."""
     flag = {"set": False}
     if threading.current_thread() is not threading.main_thread():
         yield lambda: False
         return
     previous = signal.getsignal(signal.SIGINT)
+    if previous is signal.SIG_IGN:  # e.g. a background job: Ctrl-C stays ignored
+        yield lambda: False
+        return
 
     def handler(signum, frame):
         if flag["set"]:
@@ -458,8 +464,15 @@ class _ProgressBar:
         fill = int(30 * frac)
         sys.stderr.write(f"\r[{'#' * fill}{'.' * (30 - fill)}] {done}/{total} steps  {el:6.1f}s  eta {eta:6.1f}s")
         if done >= total:
-            sys.stderr.write("\n")
+            self.close()
         sys.stderr.flush()
+
+    def close(self) -> None:
+        """End the bar's line (also when the run stopped early)."""
+        if self.shown:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+            self.shown = False
 
 
 # -- the Solution -----------------------------------------------------------------------------------
