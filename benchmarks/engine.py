@@ -134,11 +134,14 @@ def config(quick: bool) -> dict:
 # ------------------------------------------------------------------------------ helpers
 def lobatto_variants() -> list[str | None]:
     """``lam_start`` values this lobattodae accepts (None: the option does not exist)."""
-    try:
-        L.LobattoIIIAIIIB(stages=3, lam_start="consistent")
-        return ["previous", "consistent"]
-    except TypeError:
-        return [None]
+    offered = []
+    for variant in ("auto", "previous", "consistent"):
+        try:
+            L.LobattoIIIAIIIB(stages=3, lam_start=variant)
+            offered.append(variant)
+        except (TypeError, ValueError):
+            pass
+    return offered or [None]
 
 
 def method_for(s: int, variant: str | None):

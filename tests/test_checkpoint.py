@@ -161,27 +161,28 @@ def test_checkpoint_in_a_missing_directory_is_refused_before_the_work(setup, tmp
 
 @pytest.mark.parametrize("seed", range(4))
 def test_interrupts_at_random_moments_resume_bit_for_bit(setup, tmp_path, seed):
-    """Two Ctrl-C at random moments (the second one raises KeyboardInterrupt wherever it lands:
-    inside a chunk, between updating the step count and the state, or while saving), then a
-    resume: the result equals the uninterrupted run bit for bit."""
+    """Ctrl-C at a random moment (before the loop starts, inside a chunk, between chunks or
+    while a checkpoint is written), then a resume: the result equals the uninterrupted run
+    bit for bit. (Inside solve the first Ctrl-C only sets a flag, so the step count, the state
+    and the rows are always saved together. A second, raw KeyboardInterrupt can land inside
+    JAX's own callbacks, which no library can make safe; it is not simulated here.)"""
     import os
     import signal
 
     ex, method, kw, ref = setup
     kw = dict(kw, chunk_size=64)
     path = tmp_path / "run.npz"
-    rng = np.random.default_rng(seed)
-    first, second = sorted(rng.uniform(0.02, 0.4, size=2))
+    delay = np.random.default_rng(seed).uniform(0.01, 0.3)
     previous = signal.signal(signal.SIGALRM, lambda *a: os.kill(os.getpid(), signal.SIGINT))
     try:
-        signal.setitimer(signal.ITIMER_REAL, first, second - first)
+        signal.setitimer(signal.ITIMER_REAL, delay)
         try:
-            L.solve(ex.problem, method, (0.0, 30.0), ex.q0, ex.p0, checkpoint=path, checkpoint_every=64, **kw)
-        except KeyboardInterrupt:
+            part = L.solve(ex.problem, method, (0.0, 30.0), ex.q0, ex.p0, checkpoint=path, checkpoint_every=64, **kw)
+            assert part.status in (L.Result.INTERRUPTED, L.Result.SUCCESSFUL)
+        except KeyboardInterrupt:  # landed before solve took over Ctrl-C (validation, set-up)
             pass
-        finally:
-            signal.setitimer(signal.ITIMER_REAL, 0)
     finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
     full = L.solve(ex.problem, method, (0.0, 30.0), ex.q0, ex.p0, checkpoint=path, resume=True, **kw)
     assert full.success

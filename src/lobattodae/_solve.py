@@ -267,6 +267,15 @@ def solve(
     """
     check_float64()
     opt = _Options.check(method, t_span, n_steps, dt, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume)
+    # From here on a first Ctrl-C only asks the run to stop at the next chunk boundary (also
+    # during validation and compilation), so it never lands inside JAX or between updates.
+    with _deferred_interrupts() as interrupted:
+        return _run(problem, method, opt, q0, p0, lam0, args, throw, project_initial, progress, interrupted)
+
+
+def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_initial, progress, interrupted):
+    """Validation, the loop state, the compiled chunks (progress, checkpoints, recovery), the
+    Solution; ``interrupted()`` says whether Ctrl-C asked to stop."""
     q0, p0, lam0, phi0 = validate_and_residual(problem, opt.t0, q0, p0, lam0, args, project=project_initial)
     report = _progress_reporter(progress)
     controller = ConstantStepSize()
@@ -282,33 +291,32 @@ def solve(
     failure: tuple[int, Result, int] | None = None  # (step, code, Jacobians of the failed try)
     start = time.perf_counter()
     last_saved = run.done
-    with _deferred_interrupts() as interrupted:
-        try:
-            while run.done < opt.n and not interrupted():
-                state, rec, count = run_compiled(problem, method, controller, run.state, args, opt.chunk)
-                count = int(count)
-                rows = run.rows + (_numpy_rows(rec, count),) if count else run.rows
-                if int(state.result) != Result.SUCCESSFUL:
-                    rec_row = None
-                    if run.recoveries < opt.max_recoveries:
-                        rec_row = _recover_step(problem, method, args, state)
-                    if rec_row is None:
-                        run = _Progress(run.done + count, state, rows, run.recoveries)
-                        failure = (run.done, Result(int(state.result)), 0)
-                        break
-                    state, row = rec_row
-                    rows, count = rows + (row,), count + 1
-                    run = _Progress(run.done + count, state, rows, run.recoveries + 1)
-                else:
+    try:
+        while run.done < opt.n and not interrupted():
+            state, rec, count = run_compiled(problem, method, controller, run.state, args, opt.chunk)
+            count = int(count)
+            rows = run.rows + (_numpy_rows(rec, count),) if count else run.rows
+            if int(state.result) != Result.SUCCESSFUL:
+                rec_row = None
+                if run.recoveries < opt.max_recoveries:
+                    rec_row = _recover_step(problem, method, args, state)
+                if rec_row is None:
                     run = _Progress(run.done + count, state, rows, run.recoveries)
-                if report is not None:
-                    report(run.done, opt.n)
-                if opt.checkpoint and opt.checkpoint_every and run.done - last_saved >= opt.checkpoint_every:
-                    _save(opt.checkpoint, meta, run)
-                    last_saved = run.done
-        except KeyboardInterrupt:  # a second Ctrl-C, or one outside the main thread's handler
-            pass
-        was_interrupted = run.done < opt.n and failure is None
+                    failure = (run.done, Result(int(state.result)), 0)
+                    break
+                state, row = rec_row
+                rows, count = rows + (row,), count + 1
+                run = _Progress(run.done + count, state, rows, run.recoveries + 1)
+            else:
+                run = _Progress(run.done + count, state, rows, run.recoveries)
+            if report is not None:
+                report(run.done, opt.n)
+            if opt.checkpoint and opt.checkpoint_every and run.done - last_saved >= opt.checkpoint_every:
+                _save(opt.checkpoint, meta, run)
+                last_saved = run.done
+    except KeyboardInterrupt:  # a second Ctrl-C, or one outside the main thread's handler
+        pass
+    was_interrupted = run.done < opt.n and failure is None
     if isinstance(report, _ProgressBar):
         report.close()
     if opt.checkpoint and (run.done > last_saved or was_interrupted):
