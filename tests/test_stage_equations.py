@@ -125,12 +125,13 @@ def test_predictor_is_exact_on_polynomial_slopes(ratio):
         np.testing.assert_allclose(np.asarray(got)[:, 0], np.polyval(poly * k, t_new), rtol=1e-12, atol=1e-13)
 
 
-@pytest.mark.parametrize("s", [2, 3, 4])
+@pytest.mark.parametrize("s", [3])
 def test_residual_vanishes_at_a_solved_step(s):
     ex = get_example("falling-disk-general")
     method = L.LobattoIIIAIIIB(stages=s)
     q0, p0, lam0 = map(jnp.asarray, (ex.q0, ex.p0, ex.lam0))
-    q1, p1, lam1, info, state = method.step(ex.problem, 0.0, q0, p0, lam0, 0.05, ex.args)
+    step = jax.jit(lambda q, p, lam: method.step(ex.problem, 0.0, q, p, lam, 0.05, ex.args))
+    q1, p1, lam1, info, state = step(q0, p0, lam0)
     assert int(info.result) == 0
     # the constraint holds at the step point (H3: a_sj = b_j), to round-off
     assert float(jnp.max(jnp.abs(ex.problem.phi(0.05, q1, p1, ex.args)))) < 1e-14
