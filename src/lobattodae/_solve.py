@@ -288,7 +288,7 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
     meta = _run_identity(problem, method, args, opt, q0, p0, lam0) if opt.checkpoint else None
     if opt.checkpoint and opt.resume and _checkpoint.exists(opt.checkpoint):
         run = _resume(opt.checkpoint, meta, state)
-    failure: tuple[int, Result, int] | None = None  # (step, code, Jacobians of the failed try)
+    failure: tuple[int, Result] | None = None  # (failed step, its code)
     start = time.perf_counter()
     last_saved = run.done
     try:
@@ -302,7 +302,7 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
                     rec_row = _recover_step(problem, method, args, state)
                 if rec_row is None:
                     run = _Progress(run.done + count, state, rows, run.recoveries)
-                    failure = (run.done, Result(int(state.result)), 0)
+                    failure = (run.done, Result(int(state.result)))
                     break
                 state, row = rec_row
                 rows, count = rows + (row,), count + 1

@@ -40,11 +40,15 @@ __all__ = [
     "StageParams",
     "Stages",
     "assemble_jacobian",
+    "constant_stages",
+    "extrapolation_gain",
     "predict_stages",
     "stage_jacobian",
+    "stage_jacobian_autodiff",
     "stage_residual",
     "stage_values",
     "step_values",
+    "tableau_product",
 ]
 
 #: Extrapolating the previous step's stage polynomial amplifies its values by the Lebesgue-type
