@@ -25,16 +25,15 @@ from ._results import Result
 
 __all__ = ["JacobianCache", "NewtonInfo", "NewtonOptions", "empty_jacobian_cache", "newton_solve"]
 
-#: A reused Jacobian is refreshed when it contracts slower than THETA_REFRESH, or when the solve
-#: has not converged after REFRESH_ITERATIONS iterations with it (a fresh Jacobian costs about
-#: as much as several iterations, and a stale one often converges superlinearly on the nearly
-#: linear parts of the stage system, so a single ratio of increments predicts little).
+#: A reused Jacobian is refreshed (see ``needs_refresh``) when, above round-off, it contracts
+#: slower than THETA_REFRESH or its rate predicts more than REFRESH_PREDICTED further
+#: iterations, and in any case after REFRESH_ITERATIONS iterations (a fresh Jacobian costs
+#: about as much as several iterations).
 THETA_REFRESH = 0.5
 REFRESH_PREDICTED = 4.0
 REFRESH_ITERATIONS = 8
-#: With a fresh Jacobian, a contraction rate above this means the iterates are dominated by
-#: round-off: they are accepted when the increment is below STAGNATION_LEVEL·tol, else the
-#: solve has stagnated.
+#: A contraction rate above THETA_STAGNATION with an increment below STAGNATION_LEVEL·tol means
+#: the iterates are dominated by round-off: they are accepted.
 THETA_STAGNATION = 0.9
 STAGNATION_LEVEL = 1e3
 #: Scaled increments up to this size are round-off noise (their ratios say nothing about the
