@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae._loop import ConstantStepSize, init_compiled, run_compiled
+from lobattodae._controllers import ConstantStepSize, ControlOptions, StepReport
+from lobattodae._loop import Output, init_compiled, run_compiled
 from lobattodae.examples import get_example
 
 
@@ -57,33 +58,40 @@ def test_integrate_rejects_a_bad_step_count(knife):
             L.integrate(knife.problem, m, 0.0, 0.1, bad, knife.q0, knife.p0, knife.lam0, knife.args)
 
 
+def _report(ok):
+    z = jnp.zeros(2)
+    return StepReport(jnp.asarray(ok), jnp.asarray(0 if ok else 1), 0.0, 0.0, z, z, z, z[:1], z[:1], z[:1])
+
+
 def test_constant_controller_lands_exactly_on_t1():
     c = ConstantStepSize()
-    st = c.init(jnp.asarray(0.1), jnp.asarray(0.7), 3)
+    st = c.init(None, None, jnp.asarray(0.1), jnp.asarray(0.7), None, None, None, None, ControlOptions(n=3))
     times = []
     while not bool(c.done(st)):
         t, h = c.proposal(st)
         times.append(float(t))
-        _, st = c.adapt(st, jnp.asarray(True))
+        _, st, _ = c.adapt(st, None, None, _report(True))
     assert float(c.time(st)) == 0.7
     np.testing.assert_allclose(times, [0.1, 0.3, 0.5], rtol=1e-15)
-    _, st2 = c.adapt(st, jnp.asarray(False))
-    assert int(st2.k) == int(st.k)  # a failed step does not advance
+    accept, st2, result = c.adapt(st, None, None, _report(False))
+    assert int(st2.k) == int(st.k) and not bool(accept) and int(result) == 1  # a failed step ends the run
 
 
 def test_chunks_give_the_same_numbers_as_one_run(knife):
     m = L.LobattoIIIAIIIB(stages=3)
     c = ConstantStepSize()
     f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-    state = init_compiled(knife.problem, m, c, f64(0.0), f64(3.0), 60, f64(knife.q0), f64(knife.p0), f64(knife.lam0),
-                          knife.args)
-    whole, rec, n = run_compiled(knife.problem, m, c, state, knife.args, 64)
-    assert int(n) == 60 and np.all(np.isnan(np.asarray(rec.q[60:])))
+    out = Output()
+    state = init_compiled(knife.problem, m, c, out, f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0),
+                          f64(knife.p0), f64(knife.lam0), knife.args)
+    whole, chunk = run_compiled(knife.problem, m, c, out, state, knife.args, 64)
+    rec = chunk.rows
+    assert int(chunk.n_rows) == 60 and np.all(np.isnan(np.asarray(rec.q[60:])))
     part = state
     rows = []
     for _ in range(4):
-        part, r, k = run_compiled(knife.problem, m, c, part, knife.args, 16)
-        rows.append(np.asarray(r.q)[: int(k)])
+        part, r = run_compiled(knife.problem, m, c, out, part, knife.args, 16)
+        rows.append(np.asarray(r.rows.q)[: int(r.n_rows)])
     np.testing.assert_array_equal(np.concatenate(rows), np.asarray(rec.q)[:60])
     np.testing.assert_array_equal(np.asarray(part.q), np.asarray(whole.q))
 

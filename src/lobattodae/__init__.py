@@ -35,7 +35,10 @@ from ._problem import (  # noqa: E402
     hidden_constraint,
 )
 from ._results import Result  # noqa: E402
-from ._loop import IntegrateResult, integrate
+from ._loop import AdaptiveResult, IntegrateResult, integrate, integrate_adaptive  # noqa: E402
+from ._controllers import PIController, ReversibleStepSize  # noqa: E402
+from ._dense import DenseOutput  # noqa: E402
+from ._events import Event  # noqa: E402
 from ._solve import Solution, solve  # noqa: E402
 from ._stepper import LobattoIIIAIIIB, StepInfo, StepperState  # noqa: E402
 from ._tableau import LobattoPair, lobatto_iiia, lobatto_iiib, lobatto_nodes, lobatto_pair, lobatto_weights  # noqa: E402
@@ -51,6 +54,12 @@ if _os.environ.get(_CACHE_ENV) and not _cache_switched_off():
     enable_compilation_cache(_os.environ[_CACHE_ENV])
 
 __all__ = [
+    "AdaptiveResult",
+    "DenseOutput",
+    "Event",
+    "PIController",
+    "ReversibleStepSize",
+    "integrate_adaptive",
     "ConvergenceStudy",
     "TableauReport",
     "check_tableau",

@@ -6,7 +6,7 @@ rows computed so far (``rows/...``).  The private loop carry is *not* the file f
 state is stored under readable names derived from its NamedTuple field names, and the layout
 of the file is written down here and guarded by :data:`VERSION` and :data:`STATE_FINGERPRINT`.
 
-File schema (version 2)
+File schema (version 3)
 -----------------------
 An uncompressed ``.npz`` archive (:func:`numpy.savez`, every member stored, no pickled
 objects: it loads with ``allow_pickle=False``).  Its entries, each a ``.npy`` member named
@@ -99,12 +99,12 @@ __all__ = [
 ]
 
 FORMAT = "lobattodae-checkpoint"
-VERSION = 2
+VERSION = 3
 
 # schema_fingerprint(<the loop's State template>) for the current VERSION.  The loop records
 # it here once the State exists; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "06017c349824c739"  # schema_fingerprint(lobattodae._loop.State) of VERSION
+STATE_FINGERPRINT: str | None = "9c12e42f9122523c"  # schema_fingerprint(lobattodae._loop.State) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"

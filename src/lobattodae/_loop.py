@@ -4,14 +4,17 @@ One ``lax.while_loop`` whose body always reads in that order:
 
 1. **step**: the method takes a step of the size the controller proposes;
 2. **controller**: accepts or rejects it and proposes where the next step goes
-   (:class:`ConstantStepSize` here; adaptive controllers implement the same three methods);
+   (:mod:`lobattodae._controllers`); a zero of a terminal event inside the step turns the
+   step into a rejection and moves the end of the run onto the zero (:mod:`lobattodae._events`);
 3. **result**: the first failure is kept in ``State.result`` and ends the loop;
-4. **record**: an accepted step writes one row of the output buffer.
+4. **record**: an accepted step writes what :class:`Output` asks for: its step point (every
+   ``every``-th one), the rows of ``t_eval`` it passed (from its dense output), the zeros of
+   the event functions in it, its dense-output data.
 
-Everything that changes from run to run (initial values, ``t_span``, the number of steps,
-``args``) is traced, so a loop is compiled once per (problem, method, controller, shapes,
-buffer length). ``integrate`` is the pure entry point on top of it (jit/vmap-able);
-:func:`~lobattodae.solve` runs it in chunks of :data:`CHUNK` rows.
+Everything that changes from run to run (initial values, ``t_span``, tolerances, ``t_eval``
+values, ``args``) is traced, so a loop is compiled once per (problem, method, controller,
+output, shapes, buffer length). :func:`integrate` and :func:`integrate_adaptive` are the pure
+entry points on top of it (jit/vmap-able); :func:`~lobattodae.solve` runs it in chunks.
 """
 
 from __future__ import annotations
@@ -22,54 +25,45 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from ._controllers import ConstantStepSize, ControlOptions, PIController, StepReport
+from ._dense import DenseStep, empty_dense_step, evaluate
+from ._events import Event, EventState, crossings, event_values, locate
 from ._results import Result
 from ._stepper import LobattoIIIAIIIB, StepperState
 
-__all__ = ["CHUNK", "ConstantStepSize", "IntegrateResult", "Record", "State", "init_state", "integrate", "run"]
+__all__ = [
+    "CHUNK",
+    "Chunk",
+    "IntegrateResult",
+    "AdaptiveResult",
+    "Output",
+    "Record",
+    "State",
+    "init_state",
+    "integrate",
+    "integrate_adaptive",
+    "run",
+]
 
-#: Rows per compiled chunk in :func:`~lobattodae.solve` (a fixed length: a new number of steps
-#: never recompiles; a short run stops early and leaves the rest of the buffer unused).
+#: Step attempts per compiled chunk in :func:`~lobattodae.solve` (a fixed length: a new number
+#: of steps never recompiles; a short run stops early and leaves the rest of the buffers unused).
 CHUNK = 2048
 
 
-class ConstantState(NamedTuple):
-    """Step k of n on ``[t0, t1]``: ``t_k = t0 + k h``, ``h = (t1 - t0) / n``, ``t_n = t1``."""
-
-    k: jax.Array  # int32
-    n: jax.Array  # int32
-    t0: jax.Array
-    t1: jax.Array
-
-
 @dataclass(frozen=True)
-class ConstantStepSize:
-    """``n`` equal steps from ``t0`` to ``t1`` (negative h when ``t1 < t0``); every step
-    whose stage equations are solved is accepted."""
+class Output:
+    """What the loop records (static: it shapes the buffers).
 
-    def init(self, t0, t1, n) -> ConstantState:
-        return ConstantState(jnp.asarray(0, jnp.int32), jnp.asarray(n, jnp.int32), t0, t1)
+    ``t_eval``: rows at given times (the times themselves are traced, see :func:`run`)
+    instead of step points; ``dense``: each accepted step's dense-output data; ``events``:
+    the event functions whose zeros are recorded.
+    """
 
-    @staticmethod
-    def _time(st: ConstantState, k):
-        h = (st.t1 - st.t0) / st.n
-        return jnp.where(k >= st.n, st.t1, st.t0 + k * h)
-
-    def proposal(self, st: ConstantState):
-        """``(t, h)``: where the next step starts and how long it is."""
-        t = self._time(st, st.k)
-        return t, self._time(st, st.k + 1) - t
-
-    def adapt(self, st: ConstantState, succeeded) -> tuple[jax.Array, ConstantState]:
-        """``(accept, next state)`` after a step."""
-        return succeeded, st._replace(k=st.k + succeeded.astype(jnp.int32))
-
-    def done(self, st: ConstantState):
-        return st.k >= st.n
-
-    def time(self, st: ConstantState):
-        """The time of the current step point."""
-        return self._time(st, st.k)
+    t_eval: bool = False
+    dense: bool = False
+    events: tuple[Event, ...] = ()
 
 
 class Record(NamedTuple):
@@ -98,24 +92,42 @@ class State(NamedTuple):
     stepper: StepperState
     # the step-size controller's memory (where the next step goes)
     controller: Any
+    # the last accepted step's dense output (t_eval rows and events across chunk boundaries)
+    last: DenseStep
+    events: EventState
+    k_eval: jax.Array  # int32, the next t_eval row
     # outcome and counters
     result: jax.Array  # int32 Result: SUCCESSFUL while running, else the first failure's code
     n_accepted: jax.Array  # int32
+    n_rejected: jax.Array  # int32, attempts the controller did not keep (terminal re-steps excluded)
     n_newton: jax.Array  # int32, Newton iterations over all steps
     n_jacobians: jax.Array  # int32
+    max_constraint: jax.Array  # max ‖φ‖∞ over the step points so far
+    max_drift: jax.Array  # max ‖λ − λ(t, q, p)‖∞ over the step points so far
 
 
-def init_state(problem, method: LobattoIIIAIIIB, controller, t0, t1, n, q0, p0, lam0, args) -> State:
+def init_state(problem, method: LobattoIIIAIIIB, controller, output: Output, t0, t1, options: ControlOptions,
+               q0, p0, lam0, args) -> State:
     """The loop state at ``t0`` (λ0 must be consistent; nothing is validated here)."""
-    ctrl = controller.init(t0, t1, n)
+    dtype = q0.dtype
+    ctrl = controller.init(problem, method, t0, t1, q0, p0, lam0, args, options.cast(dtype))
     _, h = controller.proposal(ctrl)
     zero = jnp.asarray(0, jnp.int32)
+    n_events = len(output.events)
     return State(
         q=q0, p=p0, lam=lam0,
         stepper=method.init(problem, t0, q0, p0, lam0, args, h),
         controller=ctrl,
+        last=empty_dense_step(t0, q0, p0, lam0, method.stages),
+        events=EventState(
+            event_values(output.events, t0, q0, p0, args, dtype),
+            jnp.zeros((n_events,), jnp.int32), jnp.asarray(-1, jnp.int32),
+        ),
+        k_eval=zero,
         result=jnp.asarray(Result.SUCCESSFUL, jnp.int32),
-        n_accepted=zero, n_newton=zero, n_jacobians=zero,
+        n_accepted=zero, n_rejected=zero, n_newton=zero, n_jacobians=zero,
+        max_constraint=jnp.max(jnp.abs(problem.phi(t0, q0, p0, args)), initial=0.0),
+        max_drift=jnp.asarray(0.0, dtype),
     )
 
 
@@ -124,9 +136,9 @@ _INT_FIELDS = ("iterations", "n_jacobians", "resync")
 
 
 def _pack_row(row: Record):
-    """One float and one int32 vector per row: two buffer updates per step instead of ten."""
+    """One float and one int32 vector per row: two buffer updates per row instead of ten."""
     floats = jnp.concatenate([jnp.atleast_1d(getattr(row, f)) for f in _FLOAT_FIELDS])
-    ints = jnp.stack([getattr(row, f).astype(jnp.int32) for f in _INT_FIELDS])
+    ints = jnp.stack([jnp.asarray(getattr(row, f)).astype(jnp.int32) for f in _INT_FIELDS])
     return floats, ints
 
 
@@ -142,63 +154,229 @@ def _unpack_rows(floats, ints, n: int, m: int) -> Record:
     return Record(**out)
 
 
-def run(problem, method: LobattoIIIAIIIB, controller, state: State, args, length: int):
-    """Advance ``state`` by at most ``length`` accepted steps (fewer when the controller is
-    done or a step fails); return ``(state, records, n_records)``.
+def pack_dense(step: DenseStep):
+    return jnp.concatenate([jnp.atleast_1d(x).ravel() for x in step])
 
-    Rows past ``n_records`` are NaN. A failed step ends the loop with ``state.result`` set
-    and ``state`` left at the last step point.
+
+def unpack_dense(rows, s: int, n: int, m: int) -> DenseStep:
+    """``(k, D)`` packed rows -> a :class:`DenseStep` of stacked arrays (NumPy or JAX)."""
+    sizes = [1, 1, n, n, s * n, s * n, s * m]
+    shapes = [(), (), (n,), (n,), (s, n), (s, n), (s, m)]
+    out, i = [], 0
+    for size, shape in zip(sizes, shapes):
+        out.append(rows[:, i : i + size].reshape((rows.shape[0],) + shape))
+        i += size
+    return DenseStep(*out)
+
+
+class Chunk(NamedTuple):
+    """What one :func:`run` recorded (rows past the counts are NaN / unused)."""
+
+    rows: Record
+    n_rows: jax.Array
+    dense: Any  # (length, D) packed DenseStep rows, or None
+    n_dense: jax.Array
+    event_rows: Any  # (capacity, 1 + 2n + m): t, q, p, lam of each zero found, or None
+    event_index: Any  # (capacity,) int32: which event function
+    n_events: jax.Array
+
+
+def _row(problem, args, t, q, p, lam, info=None) -> Record:
+    zero = jnp.asarray(0, jnp.int32)
+    return Record(
+        t, q, p, lam,
+        zero if info is None else info.iterations,
+        zero if info is None else info.n_jacobians,
+        jnp.zeros((), q.dtype) if info is None else info.residual_norm,
+        jnp.max(jnp.abs(problem.phi(t, q, p, args)), initial=0.0),
+        jnp.zeros((), q.dtype) if info is None else info.drift,
+        jnp.asarray(False) if info is None else info.resync,
+    )
+
+
+def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: State, args, length: int,
+        every=1, t_eval=None):
+    """Advance ``state`` by at most ``length`` step attempts; return ``(state, Chunk)``.
+
+    The loop also stops when the controller is done, a step fails, or the buffers are full
+    (``length`` rows; with ``output.t_eval`` a step can pass several rows of ``t_eval``, the
+    rest are written by the next call, which starts by writing the rows its state has passed).
+    ``every``: keep every k-th step point (and the last); ``t_eval``: (L,) output times in the
+    direction of integration, NaN-padded (with ``output.t_eval``). A failed step ends the loop
+    with ``state.result`` set and ``state`` left at the last step point.
     """
+    dtype = state.q.dtype
+    n, m = state.q.shape[-1], state.lam.shape[-1]
+    events = output.events
+    n_ev = len(events)
+    pair = method.pair
+    direction = jnp.sign(controller.proposal(state.controller)[1])
+    t_eval = jnp.full((1,), jnp.nan, dtype) if t_eval is None else jnp.asarray(t_eval, dtype)
+    every = jnp.asarray(every, jnp.int32)
+
+    def pending(st, n_rows):
+        k = jnp.minimum(st.k_eval, t_eval.shape[0] - 1)
+        t_now = controller.time(st.controller)
+        return output.t_eval & (st.k_eval < t_eval.shape[0]) & (direction * (t_eval[k] - t_now) <= 0) & (n_rows < length)
+
+    def flush(st, rows, n_rows, step: DenseStep, info=None):
+        """Write the t_eval rows up to the current step point from ``step``'s dense output."""
+        if not output.t_eval:
+            return st, rows, n_rows
+        t_now = controller.time(st.controller)
+
+        def body(c):
+            k, rows, i = c
+            te = t_eval[k]
+            at_end = te == t_now
+            q, p, lam = evaluate(pair, step, te)
+            q, p, lam = (jnp.where(at_end, a, b) for a, b in zip((st.q, st.p, st.lam), (q, p, lam)))
+            floats, ints = _pack_row(_row(problem, args, te, q, p, lam, info))
+            return k + 1, (rows[0].at[i].set(floats), rows[1].at[i].set(ints)), i + 1
+
+        def cond(c):
+            k, _, i = c
+            return pending(st._replace(k_eval=k), i)
+
+        k, rows, n_rows = jax.lax.while_loop(cond, body, (st.k_eval, rows, n_rows))
+        return st._replace(k_eval=k), rows, n_rows
 
     def running(carry):
-        st, _, i = carry
-        return (st.result == Result.SUCCESSFUL) & ~controller.done(st.controller) & (i < length)
+        st, buf, attempts = carry
+        rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
+        return (
+            (st.result == Result.SUCCESSFUL) & ~controller.done(st.controller) & (attempts < length)
+            & (n_rows < length) & (n_events + n_ev <= length) & ~pending(st, n_rows)
+        )
 
     def body(carry):
-        st, rec, i = carry
+        st, buf, attempts = carry
+        rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
         # 1. step
         t, h = controller.proposal(st.controller)
         q1, p1, lam1, info, stepper = method.step(problem, t, st.q, st.p, st.lam, h, args, st.stepper)
         ok = info.result == Result.SUCCESSFUL
-        # 2. controller
-        accept, ctrl = controller.adapt(st.controller, ok)
-        # 3. result
-        result = jnp.where(ok, st.result, info.result).astype(jnp.int32)
-        # 4. record
-        t1 = controller.time(ctrl)
-        row = Record(
-            t1, q1, p1, lam1, info.iterations, info.n_jacobians, info.residual_norm,
-            jnp.max(jnp.abs(problem.phi(t1, q1, p1, args))), info.drift, info.resync,
+        # 2. controller (and terminal events, which turn the step into a re-step to the zero)
+        report = StepReport(
+            ok, info.result, t, h, jnp.concatenate([st.q, st.p]), jnp.concatenate([q1, p1]), info.error, q1, p1, lam1
         )
-        floats, ints = _pack_row(row)
-        rec = (rec[0].at[i].set(jnp.where(accept, floats, jnp.nan)), rec[1].at[i].set(ints))
-        keep = functools.partial(jnp.where, accept)
+        accept, ctrl, result = controller.adapt(st.controller, problem, args, report)
+        t1 = jnp.where(accept, controller.time(ctrl), t + h)
+        ev_state, found, times, stop, t_stop = _events(st, info.dense, t1, q1, p1, accept, args)
+        ctrl = jax.tree_util.tree_map(
+            lambda a, b: jnp.where(stop, a, b), controller.stop_at(st.controller, t_stop), ctrl
+        )
+        kept = accept & ~stop
+        finished = kept & controller.done(ctrl)
+        final_event = finished & (st.events.stopping >= 0)
+        # 3. result
+        result = jnp.where(final_event & (result == Result.SUCCESSFUL), Result.EVENT, result)
+        result = jnp.where(st.result != Result.SUCCESSFUL, st.result, result).astype(jnp.int32)
+        # 4. record
+        constraint = jnp.max(jnp.abs(problem.phi(t1, q1, p1, args)), initial=0.0)
+        keep = functools.partial(jnp.where, kept)
+        n_acc = st.n_accepted + kept.astype(jnp.int32)
         new = State(
             q=keep(q1, st.q), p=keep(p1, st.p), lam=keep(lam1, st.lam),
             stepper=jax.tree_util.tree_map(keep, stepper, st.stepper),
             controller=ctrl,
+            last=jax.tree_util.tree_map(keep, info.dense, st.last),
+            events=ev_state._replace(
+                counts=ev_state.counts + (final_event & (jnp.arange(n_ev) == st.events.stopping)).astype(jnp.int32)
+            ),
+            k_eval=st.k_eval,
             result=result,
-            n_accepted=st.n_accepted + accept.astype(jnp.int32),
+            n_accepted=n_acc,
+            n_rejected=st.n_rejected + (~accept).astype(jnp.int32),
             n_newton=st.n_newton + info.iterations,
             n_jacobians=st.n_jacobians + info.n_jacobians,
+            max_constraint=jnp.where(kept, jnp.maximum(st.max_constraint, constraint), st.max_constraint),
+            max_drift=jnp.where(kept, jnp.maximum(st.max_drift, info.drift), st.max_drift),
         )
-        return new, rec, i + accept.astype(jnp.int32)
+        if output.t_eval:
+            new, rows, n_rows = flush(new, rows, n_rows, new.last, info)
+        else:
+            save = kept & ((n_acc % every == 0) | finished)
+            row = Record(t1, q1, p1, lam1, info.iterations, info.n_jacobians, info.residual_norm, constraint,
+                         info.drift, info.resync)
+            floats, ints = _pack_row(row)
+            at = jnp.where(save, n_rows, length)
+            rows = (rows[0].at[at].set(floats, mode="drop"), rows[1].at[at].set(ints, mode="drop"))
+            n_rows = n_rows + save.astype(jnp.int32)
+        if output.dense:
+            at = jnp.where(kept, n_dense, length)
+            dense = dense.at[at].set(pack_dense(info.dense), mode="drop")
+            n_dense = n_dense + kept.astype(jnp.int32)
+        if n_ev:
+            ev_rows, ev_idx, n_events = _write_events(
+                ev_rows, ev_idx, n_events, found, times, info.dense, final_event,
+                st.events.stopping, t1, q1, p1, lam1,
+            )
+        return new, (rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events), attempts + 1
 
-    n, m = state.q.shape[-1], state.lam.shape[-1]
-    buffers = (jnp.full((length, 2 * n + m + 4), jnp.nan, state.q.dtype), jnp.zeros((length, 3), jnp.int32))
-    state, (floats, ints), i = jax.lax.while_loop(running, body, (state, buffers, jnp.asarray(0, jnp.int32)))
-    return state, _unpack_rows(floats, ints, n, m), i
+    def _events(st, step, t1, q1, p1, accept, args):
+        """The event functions at the new point, the zeros found in the step (with their
+        times), and whether a terminal one stops the run inside it (at ``t_stop``)."""
+        if not n_ev:
+            return st.events, jnp.zeros((0,), bool), jnp.zeros((0,), dtype), jnp.asarray(False), t1
+        v0 = st.events.values
+        v1 = event_values(events, t1, q1, p1, args, dtype)
+        stopping = st.events.stopping >= 0
+        index = jnp.arange(n_ev)
+        # on the re-step to a terminal zero, that zero is recorded at the step's end instead
+        found = crossings(events, v0, v1) & accept & ~(stopping & (index == st.events.stopping))
+        times = jnp.stack([
+            jax.lax.cond(found[j], lambda j=j: locate(pair, events[j], step, args, v0[j], v1[j]), lambda: t1)
+            for j in range(n_ev)
+        ])
+        terminal = jnp.asarray([ev.terminal for ev in events], jnp.int32)
+        is_stop = found & (terminal > 0) & (st.events.counts + 1 >= terminal) & ~stopping
+        j_stop = jnp.argmin(jnp.where(is_stop, direction * times, jnp.inf)).astype(jnp.int32)
+        stop = jnp.any(is_stop)
+        kept = accept & ~stop
+        new = EventState(
+            jnp.where(kept, v1, v0),
+            st.events.counts + (found & kept).astype(jnp.int32),
+            jnp.where(stop, j_stop, st.events.stopping),
+        )
+        return new, found & kept, times, stop, times[j_stop]
+
+    def _write_events(ev_rows, ev_idx, n_events, found, times, step, final_event, stopping, t1, q1, p1, lam1):
+        for j in range(n_ev):
+            q, p, lam = evaluate(pair, step, times[j])
+            row = jnp.concatenate([times[j][None], q, p, lam])
+            at = jnp.where(found[j], n_events, ev_rows.shape[0])
+            ev_rows = ev_rows.at[at].set(row, mode="drop")
+            ev_idx = ev_idx.at[at].set(j, mode="drop")
+            n_events = n_events + found[j].astype(jnp.int32)
+        row = jnp.concatenate([t1[None], q1, p1, lam1])
+        at = jnp.where(final_event, n_events, ev_rows.shape[0])
+        ev_rows = ev_rows.at[at].set(row, mode="drop")
+        ev_idx = ev_idx.at[at].set(stopping, mode="drop")
+        return ev_rows, ev_idx, n_events + final_event.astype(jnp.int32)
+
+    rows = (jnp.full((length, 2 * n + m + 4), jnp.nan, dtype), jnp.zeros((length, 3), jnp.int32))
+    zero = jnp.asarray(0, jnp.int32)
+    state, rows, n_rows = flush(state, rows, zero, state.last)
+    d_size = 2 + 2 * n + method.stages * (2 * n + m)
+    dense = jnp.full((length, d_size), jnp.nan, dtype) if output.dense else None
+    ev_rows = jnp.full((length, 1 + 2 * n + m), jnp.nan, dtype) if n_ev else None
+    ev_idx = jnp.zeros((length,), jnp.int32) if n_ev else None
+    buf = (rows, n_rows, dense, zero, ev_rows, ev_idx, zero)
+    state, buf, _ = jax.lax.while_loop(running, body, (state, buf, zero))
+    (floats, ints), n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
+    return state, Chunk(_unpack_rows(floats, ints, n, m), n_rows, dense, n_dense, ev_rows, ev_idx, n_events)
 
 
-@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "length"))
-def run_compiled(problem, method, controller, state, args, length):
-    """:func:`run`, compiled once per (problem, method, controller, shapes, length)."""
-    return run(problem, method, controller, state, args, length)
+@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output", "length"))
+def run_compiled(problem, method, controller, output, state, args, length, every=1, t_eval=None):
+    """:func:`run`, compiled once per (problem, method, controller, output, shapes, length)."""
+    return run(problem, method, controller, output, state, args, length, every, t_eval)
 
 
-@functools.partial(jax.jit, static_argnames=("problem", "method", "controller"))
-def init_compiled(problem, method, controller, t0, t1, n, q0, p0, lam0, args):
-    return init_state(problem, method, controller, t0, t1, n, q0, p0, lam0, args)
+@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output"))
+def init_compiled(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args):
+    return init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
 
 
 class IntegrateResult(NamedTuple):
@@ -210,19 +388,27 @@ class IntegrateResult(NamedTuple):
     status: jax.Array  # int32 Result code: 0 on success, else the first failure's code
 
 
+def _with_initial(x0, rows):
+    return jnp.concatenate([x0[None], rows])
+
+
 def _integrate(problem, method, n_steps, t0, h, q0, p0, lam0, args):
     controller = ConstantStepSize()
-    state = init_state(problem, method, controller, t0, t0 + n_steps * h, n_steps, q0, p0, lam0, args)
-    state, rec, _ = run(problem, method, controller, state, args, n_steps)
-    return IntegrateResult(
-        jnp.concatenate([q0[None], rec.q]),
-        jnp.concatenate([p0[None], rec.p]),
-        jnp.concatenate([lam0[None], rec.lam]),
-        state.result,
-    )
+    options = ControlOptions(n=n_steps)
+    state = init_state(problem, method, controller, Output(), t0, t0 + n_steps * h, options, q0, p0, lam0, args)
+    state, chunk = run(problem, method, controller, Output(), state, args, n_steps)
+    rec = chunk.rows
+    return IntegrateResult(_with_initial(q0, rec.q), _with_initial(p0, rec.p), _with_initial(lam0, rec.lam), state.result)
 
 
 _integrate_compiled = jax.jit(_integrate, static_argnums=(0, 1, 2))
+
+
+def _check_count(name: str, value) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        from ._errors import LobattoDAEInputError
+
+        raise LobattoDAEInputError(f"{name} must be a positive integer (it sets the output shape); got {value!r}.")
 
 
 def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam0, args=None) -> IntegrateResult:
@@ -231,7 +417,7 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
     The building block for batched use: ``jax.vmap(integrate, ...)`` over initial values or
     ``args``. The initial values must be consistent (see :func:`consistent_lambda`); nothing
     is validated here. Compiled once per (problem, method, n_steps, shapes): reuse one problem
-    object and pass parameters through ``args``.
+    object and pass parameters through ``args``. ``h < 0`` integrates backwards.
 
     Returns
     -------
@@ -240,10 +426,78 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
         initial value) and the :class:`Result` code (0 on success, else the first failure's
         code). The rows after a failed step are NaN.
     """
-    if isinstance(n_steps, bool) or not isinstance(n_steps, int) or n_steps < 1:
-        from ._errors import LobattoDAEInputError
-
-        raise LobattoDAEInputError(f"n_steps must be a positive integer (it sets the output shape); got {n_steps!r}.")
-    dtype = jnp.float64
-    cast = functools.partial(jnp.asarray, dtype=dtype)
+    _check_count("n_steps", n_steps)
+    cast = functools.partial(jnp.asarray, dtype=jnp.float64)
     return _integrate_compiled(problem, method, n_steps, cast(t0), cast(h), cast(q0), cast(p0), cast(lam0), args)
+
+
+class AdaptiveResult(NamedTuple):
+    """What :func:`integrate_adaptive` returns."""
+
+    t: jax.Array  # (rows,) step points (row 0: t0) or the t_eval times
+    q: jax.Array  # (rows, n)
+    p: jax.Array  # (rows, n)
+    lam: jax.Array  # (rows, m)
+    n_rows: jax.Array  # int32: the valid rows (the rest are NaN)
+    n_steps: jax.Array  # int32: accepted steps
+    n_rejected: jax.Array  # int32
+    status: jax.Array  # int32 Result code (MAX_STEPS when max_steps ran out first)
+
+
+def _integrate_adaptive(problem, method, controller, max_steps, t0, t1, q0, p0, lam0, args, options, t_eval):
+    output = Output(t_eval=t_eval is not None)
+    state = init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
+    length = max_steps if t_eval is None else t_eval.shape[0]
+    state, chunk = _run_to_limit(problem, method, controller, output, state, args, length, max_steps, t_eval)
+    rec = chunk.rows
+    status = jnp.where(
+        (state.result == Result.SUCCESSFUL) & ~controller.done(state.controller), Result.MAX_STEPS, state.result
+    ).astype(jnp.int32)
+    if t_eval is None:
+        return AdaptiveResult(
+            _with_initial(t0, rec.t), _with_initial(q0, rec.q), _with_initial(p0, rec.p), _with_initial(lam0, rec.lam),
+            chunk.n_rows + 1, state.n_accepted, state.n_rejected, status,
+        )
+    return AdaptiveResult(rec.t, rec.q, rec.p, rec.lam, chunk.n_rows, state.n_accepted, state.n_rejected, status)
+
+
+def _run_to_limit(problem, method, controller, output, state, args, length, max_steps, t_eval):
+    """One :func:`run` whose attempt limit is ``max_steps`` (and row buffer ``length``)."""
+    if length == max_steps:
+        return run(problem, method, controller, output, state, args, length, 1, t_eval)
+    # rows and attempts differ (t_eval): give the loop the larger buffer, keep the first rows
+    big = max(length, max_steps)
+    state, chunk = run(problem, method, controller, output, state, args, big, 1, t_eval)
+    rows = Record(*(x[:length] for x in chunk.rows))
+    return state, chunk._replace(rows=rows)
+
+
+_integrate_adaptive_compiled = jax.jit(_integrate_adaptive, static_argnums=(0, 1, 2, 3))
+
+
+def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, args=None, *, rtol=1e-8, atol=1e-10,
+                       first_step=0.0, max_step=jnp.inf, max_steps: int = 4096, t_eval=None,
+                       controller=PIController()) -> AdaptiveResult:
+    """Pure, jit/vmap-able integration with error-controlled (or reversible) step sizes.
+
+    The same loop and controllers as :func:`~lobattodae.solve` without the input checks, for
+    batched use (``jax.vmap`` over initial values, ``args``, tolerances or ``t_span``). At most
+    ``max_steps`` step attempts (a static bound: it sizes the output); running out of them is
+    the status ``Result.MAX_STEPS``, never a silent truncation. ``t_span = (t0, t1)`` with
+    ``t1 < t0`` integrates backwards.
+
+    Returns
+    -------
+    AdaptiveResult
+        ``(t, q, p, lam, n_rows, n_steps, n_rejected, status)``: without ``t_eval`` the step
+        points (row 0 is the initial value; ``max_steps + 1`` rows, those past ``n_rows`` NaN),
+        with ``t_eval`` (an array, sorted in the direction of integration) one row per time.
+    """
+    _check_count("max_steps", max_steps)
+    cast = functools.partial(jnp.asarray, dtype=jnp.float64)
+    t0, t1 = (cast(x) for x in t_span)
+    options = ControlOptions(1, rtol, atol, first_step, max_step)
+    t_eval = None if t_eval is None else cast(t_eval)
+    return _integrate_adaptive_compiled(
+        problem, method, controller, max_steps, t0, t1, cast(q0), cast(p0), cast(lam0), args, options, t_eval
+    )

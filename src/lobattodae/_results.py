@@ -19,6 +19,14 @@ class Result(enum.IntEnum):
     DIVERGED = 2
     NONFINITE = 3
     INTERRUPTED = 4
+    STEP_SIZE_TOO_SMALL = 5
+    MAX_STEPS = 6
+    EVENT = 7
+
+    @property
+    def success(self) -> bool:
+        """True for a run that reached its end: the end of the interval or a terminal event."""
+        return self in (Result.SUCCESSFUL, Result.EVENT)
 
     @property
     def message(self) -> str:
@@ -40,4 +48,10 @@ _MESSAGES = {
         "the step is too large for the problem or the problem functions overflow."
     ),
     Result.INTERRUPTED: "The integration was interrupted; the computed prefix is returned.",
+    Result.STEP_SIZE_TOO_SMALL: (
+        "The step size fell below 1e-14·|t| (the error test or Newton's method kept failing); the "
+        "problem may be singular there, or the tolerances are too tight."
+    ),
+    Result.MAX_STEPS: "The step limit (max_steps) was reached before the end of the interval.",
+    Result.EVENT: "A terminal event occurred.",
 }

@@ -24,33 +24,43 @@ import numpy as np
 
 from . import _checkpoint
 from ._errors import LobattoDAEInputError, NewtonFailure
-from ._loop import CHUNK, ConstantStepSize, Record, State, init_compiled, run_compiled
+from ._controllers import ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
+from ._dense import DenseOutput
+from ._events import as_events
+from ._loop import CHUNK, Output, Record, State, init_compiled, run_compiled
 from ._results import Result
 from ._stepper import LobattoIIIAIIIB
 from ._validate import check_float64, validate_and_residual
 
 __all__ = ["Solution", "solve", "STATS"]
 
-#: The keys of ``Solution.stats`` (the one place they are documented).
+#: The keys of ``Solution.stats`` (the one place they are documented). "Rows" are the output
+#: rows after the initial one: step points (every ``save_every``-th) or ``t_eval`` times.
 STATS = {
-    "newton_iterations": "(N,) Newton iterations of each step",
-    "residual_norm": "(N,) max-norm of the last Newton residual of each step",
-    "constraint_residual": "(N+1,) ‖φ(t_k, q_k, p_k)‖∞",
-    "multiplier_drift": "(N+1,) ‖λ_k − λ(t_k, q_k, p_k)‖∞, the distance of λ from the hidden constraint",
-    "lam_resync": "(N,) bool: the step started from λ(t_k, q_k, p_k) (lam_start='auto' re-synchronised λ)",
-    "lam_resets": "number of re-synchronisations of λ (lam_start='auto')",
+    "newton_iterations": "(rows,) Newton iterations of the step that produced each row",
+    "residual_norm": "(rows,) max-norm of that step's last Newton residual",
+    "constraint_residual": "(N+1,) ‖φ(t_k, q_k, p_k)‖∞ at the output rows (with t_eval: between steps, on the dense output)",
+    "multiplier_drift": "(N+1,) ‖λ_k − λ(t_k, q_k, p_k)‖∞ of the step that produced each row",
+    "lam_resync": "(rows,) bool: that step started from λ(t_k, q_k, p_k) (lam_start='auto' re-synchronised λ)",
+    "lam_resets": "number of re-synchronisations of λ in the output rows (lam_start='auto')",
     "lam_excursions": "steps where the drift left its normal band (re-synchronised with 'auto', only counted otherwise)",
+    "max_constraint_residual": "max ‖φ‖∞ over every step point (saved or not)",
+    "max_multiplier_drift": "max ‖λ − λ(t, q, p)‖∞ over every step point",
     "n_jacobians": "Newton Jacobian evaluations (each with one factorisation)",
     "n_newton": "Newton iterations in all",
-    "h": "the step size",
-    "n_steps": "the number of steps asked for",
+    "n_steps": "accepted steps",
+    "n_rejected": "rejected step attempts (error test or Newton failure; adaptive steps)",
+    "h": "the constant step size, or None for adaptive steps",
     "failed_step": "index of the failed step, or None",
-    "recoveries": "failed steps retried as substeps (max_recoveries)",
+    "recoveries": "failed steps retried as substeps (max_recoveries, constant steps)",
     "compile_and_run_time": "wall time of the integration loop, compilation included (s)",
 }
 
 #: Automatic recovery retries a failed step as 2, 4, 8, 16 substeps (one compiled chunk of 16).
 _RECOVERY_HALVINGS = 4
+#: Default tolerances of adaptive steps.
+RTOL, ATOL = 1e-8, 1e-10
+_EPS = float(np.finfo(np.float64).eps)
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,15 +70,22 @@ class Solution:
     Attributes
     ----------
     t : ndarray, shape (N+1,)
+        The initial time and the kept step points, or the ``t_eval`` times.
     q, p : ndarray, shape (N+1, n)
     lam : ndarray, shape (N+1, m)
         The multiplier λ_k at t_k (λ_0 is the consistent initial value).
     success : bool
+        The run reached the end of the interval or a terminal event.
     status : Result
-        ``Result.SUCCESSFUL`` or the reason the integration stopped early.
+        ``SUCCESSFUL``, ``EVENT`` (a terminal event) or the reason the run stopped early.
     message : str
     stats : dict
         See :data:`STATS`. When the solve stopped early the arrays hold the computed prefix.
+    t_events, q_events, p_events, lam_events : list of ndarray or None
+        One array per event function: the times and states of its zeros (None without
+        events).
+    sol : DenseOutput or None
+        ``sol(t) -> (q, p, lam)`` between the step points (``dense_output=True``).
     problem, method, args
         What was solved, for diagnostics.
     """
@@ -84,12 +101,17 @@ class Solution:
     problem: Any = field(repr=False, default=None)
     method: Any = field(repr=False, default=None)
     args: Any = field(repr=False, default=None)
+    t_events: list | None = field(repr=False, default=None)
+    q_events: list | None = field(repr=False, default=None)
+    p_events: list | None = field(repr=False, default=None)
+    lam_events: list | None = field(repr=False, default=None)
+    sol: DenseOutput | None = field(repr=False, default=None)
 
     def __repr__(self) -> str:
         return (
-            f"Solution(success={self.success}, status={self.status.name}, n_steps={len(self.t) - 1}, "
+            f"Solution(success={self.success}, status={self.status.name}, n_steps={self.stats['n_steps']}, "
             f"t=[{self.t[0]:g}, {self.t[-1]:g}], max constraint residual="
-            f"{np.max(self.stats['constraint_residual']):.2e})"
+            f"{self.stats['max_constraint_residual']:.2e})"
         )
 
 
@@ -100,26 +122,75 @@ class _Options:
 
     t0: float
     t1: float
-    n: int
-    h: float
+    n: int | None  # constant steps: their number (None: adaptive)
+    h: float | None
+    control: ControlOptions  # numbers (tolerances, step bounds)
+    controller: Any  # the controller object (static)
+    output: Output
+    t_eval: np.ndarray | None
+    every: int
     chunk: int
     max_recoveries: int
     checkpoint: str | None
     checkpoint_every: int | None
     resume: bool
 
+    @property
+    def adaptive(self) -> bool:
+        return self.n is None
+
     @classmethod
-    def check(cls, method, t_span, n_steps, dt, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume):
+    def check(cls, method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output,
+              events, save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume):
         if not isinstance(method, LobattoIIIAIIIB):
             raise TypeError(
                 f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3); got {method!r}."
             )
         t0, t1 = _check_t_span(t_span)
-        n, h = _step_count(t0, t1, n_steps, dt)
+        constant = n_steps is not None or dt is not None
+        if constant:
+            n, h = _step_count(t0, t1, n_steps, dt)
+            for name, value in (("rtol", rtol), ("atol", atol), ("first_step", first_step), ("controller", controller)):
+                if value is not None:
+                    raise LobattoDAEInputError(
+                        f"{name} applies to adaptive steps; drop n_steps/dt to let the solver choose the steps, "
+                        f"or drop {name}."
+                    )
+            if max_step is not None and not math.isinf(float(max_step)):
+                raise LobattoDAEInputError("max_step applies to adaptive steps; with constant steps use dt.")
+            control, ctrl = ControlOptions(n=n), ConstantStepSize()
+        else:
+            n = h = None
+            rtol = RTOL if rtol is None else _positive_float("rtol", rtol)
+            atol = ATOL if atol is None else _positive_float("atol", atol, allow_zero=True)
+            if rtol < 100 * _EPS:
+                raise LobattoDAEInputError(
+                    f"rtol={rtol:g} is below what float64 can deliver; use rtol >= {100 * _EPS:.1e}."
+                )
+            first = 0.0 if first_step is None else _positive_float("first_step", first_step)
+            if first > abs(t1 - t0):
+                raise LobattoDAEInputError(f"first_step={first:g} is longer than the interval |t1 - t0| = {abs(t1 - t0):g}.")
+            biggest = math.inf if max_step is None else _positive_float("max_step", max_step, allow_inf=True)
+            control = ControlOptions(1, rtol, atol, first, biggest)
+            ctrl = PIController() if controller is None else controller
+            if not isinstance(ctrl, (PIController, ReversibleStepSize)):
+                raise LobattoDAEInputError(
+                    f"controller must be lobattodae.PIController(...) or lobattodae.ReversibleStepSize(...); got {ctrl!r}."
+                )
+        t_eval = _check_t_eval(t_eval, t0, t1)
+        every = _check_save_every(save_every)
+        if t_eval is not None and save_every not in (None, 1):
+            raise LobattoDAEInputError("give t_eval (rows at given times) or save_every (every k-th step point), not both.")
+        output = Output(t_eval=t_eval is not None, dense=bool(dense_output), events=as_events(events))
         if chunk_size is not None and (isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1):
             raise LobattoDAEInputError(f"chunk_size must be a positive integer; got {chunk_size!r}.")
         if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
             raise LobattoDAEInputError(f"max_recoveries must be a non-negative integer; got {max_recoveries!r}.")
+        if max_recoveries and (not constant or output != Output()):
+            raise LobattoDAEInputError(
+                "max_recoveries applies to constant steps without t_eval, events or dense_output; adaptive steps "
+                "recover from failed steps by themselves (drop n_steps/dt)."
+            )
         if checkpoint_every is not None and (
             isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int) or checkpoint_every < 1
         ):
@@ -130,7 +201,8 @@ class _Options:
         if checkpoint is not None:
             path = os.fspath(checkpoint)
             check_writable(path, "checkpoint")
-        return cls(t0, t1, n, h, chunk_size or CHUNK, max_recoveries, path, checkpoint_every, bool(resume))
+        return cls(t0, t1, n, h, control, ctrl, output, t_eval, every, chunk_size or CHUNK, max_recoveries, path,
+                   checkpoint_every, bool(resume))
 
 
 def check_writable(path: str, what: str) -> None:
@@ -146,10 +218,55 @@ def check_writable(path: str, what: str) -> None:
         raise LobattoDAEInputError(f"cannot write the {what} '{path}': it is a directory.")
 
 
+def _positive_float(name: str, value, allow_zero: bool = False, allow_inf: bool = False) -> float:
+    if isinstance(value, (bool, str)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise LobattoDAEInputError(f"{name} must be a positive number; got {value!r}.")
+    x = float(value)
+    if math.isnan(x) or (math.isinf(x) and not allow_inf) or x < 0 or (x == 0 and not allow_zero):
+        what = "a non-negative" if allow_zero else "a positive"
+        raise LobattoDAEInputError(f"{name} must be {what} finite number; got {name}={value!r}.")
+    return x
+
+
+def _check_save_every(save_every) -> int:
+    if save_every is None:
+        return 1
+    if save_every == "final":
+        return np.iinfo(np.int32).max
+    if isinstance(save_every, bool) or not isinstance(save_every, (int, np.integer)) or save_every < 1:
+        raise LobattoDAEInputError(
+            f"save_every must be a positive integer (keep every k-th step point) or 'final'; got {save_every!r}."
+        )
+    return int(min(save_every, np.iinfo(np.int32).max))
+
+
+def _check_t_eval(t_eval, t0: float, t1: float):
+    if t_eval is None:
+        return None
+    try:
+        te = np.asarray(t_eval, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise LobattoDAEInputError(f"t_eval must be a 1-D array of times; got {t_eval!r}.") from None
+    te = np.atleast_1d(te)
+    if te.ndim != 1 or te.size == 0:
+        raise LobattoDAEInputError(f"t_eval must be a non-empty 1-D array of times; got shape {te.shape}.")
+    if not np.all(np.isfinite(te)):
+        raise LobattoDAEInputError("t_eval contains NaN or inf; give finite times.")
+    lo, hi = min(t0, t1), max(t0, t1)
+    if np.any(te < lo) or np.any(te > hi):
+        raise LobattoDAEInputError(f"t_eval must lie within t_span = ({t0:g}, {t1:g}); got values in [{te.min():g}, {te.max():g}].")
+    step = np.diff(te) * (1.0 if t1 > t0 else -1.0)
+    if np.any(step < 0):
+        raise LobattoDAEInputError(
+            "t_eval must be sorted in the direction of integration (increasing for t1 > t0, decreasing for t1 < t0)."
+        )
+    return te
+
+
 def _step_count(t0: float, t1: float, n_steps, dt) -> tuple[int, float]:
-    if (n_steps is None) == (dt is None):
-        raise LobattoDAEInputError("give exactly one of n_steps (number of steps) or dt (step size).")
-    span = t1 - t0
+    if n_steps is not None and dt is not None:
+        raise LobattoDAEInputError("give at most one of n_steps (number of steps) or dt (step size).")
+    span = abs(t1 - t0)
     if n_steps is not None:
         if isinstance(n_steps, bool) or not isinstance(n_steps, (int, np.integer)):
             raise LobattoDAEInputError(f"n_steps must be a positive integer; got {n_steps!r}.")
@@ -162,8 +279,26 @@ def _step_count(t0: float, t1: float, n_steps, dt) -> tuple[int, float]:
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0):
             raise LobattoDAEInputError(f"dt must be a positive finite step size; got dt={dt!r}.")
-        n = max(1, math.ceil(span / dt * (1 - 1e-12)))
-    return n, span / n
+        count = span / dt * (1 - 1e-12)
+        if not math.isfinite(count) or count > _MAX_CONSTANT_STEPS:
+            raise LobattoDAEInputError(
+                f"dt={dt:g} over |t1 - t0| = {span:g} means {count:.3g} steps, more than {_MAX_CONSTANT_STEPS:.0e}; "
+                "use a larger dt, or adaptive steps (drop dt and give rtol/atol)."
+            )
+        n = max(1, math.ceil(count))
+    if n > _MAX_CONSTANT_STEPS:
+        raise LobattoDAEInputError(f"n_steps={n} is more than {_MAX_CONSTANT_STEPS:.0e} steps; the step counter is 32-bit.")
+    h = (t1 - t0) / n
+    if abs(h) < 1e-14 * max(abs(t0), abs(t1)):
+        raise LobattoDAEInputError(
+            f"the step h = {h:g} is below the resolution of t (|t| up to {max(abs(t0), abs(t1)):g}); the times "
+            "t_k would not be distinct. Use fewer steps or shift t_span towards 0."
+        )
+    return n, h
+
+
+#: The step counter is int32.
+_MAX_CONSTANT_STEPS = 2**31 - 2
 
 
 def _check_t_span(t_span) -> tuple[float, float]:
@@ -173,10 +308,13 @@ def _check_t_span(t_span) -> tuple[float, float]:
         raise LobattoDAEInputError(f"t_span must be a pair (t0, t1) of numbers; got {t_span!r}.") from None
     if not (math.isfinite(t0) and math.isfinite(t1)):
         raise LobattoDAEInputError(f"t_span must be finite; got {t_span!r}.")
-    if not t1 > t0:
+    if t1 == t0:
+        raise LobattoDAEInputError(f"t_span = ({t0}, {t1}) is empty; give t1 != t0 (t1 < t0 integrates backwards).")
+    if abs(t1 - t0) < 1e-13 * max(abs(t0), abs(t1)):
         raise LobattoDAEInputError(
-            f"t_span = ({t0}, {t1}) is empty or reversed; solve integrates forward and needs t1 > t0 "
-            "(for a step backwards use method.step with a negative h)."
+            f"t_span = ({t0!r}, {t1!r}) is shorter than the resolution of t at that magnitude (about "
+            f"{_EPS * max(abs(t0), abs(t1)):.2g}); shift the time origin (the problem functions can add it back "
+            "through args)."
         )
     return t0, t1
 
@@ -184,11 +322,12 @@ def _check_t_span(t_span) -> tuple[float, float]:
 # -- the run ------------------------------------------------------------------------------------
 class _Progress(NamedTuple):
     """How far a run got: replaced as a whole (one assignment), so that an interrupt can never
-    see a step count that does not belong to the state and the rows."""
+    see a state that does not belong to its rows."""
 
-    done: int
     state: State
     rows: tuple  # of Record chunks (NumPy)
+    dense: tuple  # of packed dense-output chunks (NumPy)
+    events: tuple  # of (rows, index) chunks (NumPy)
     recoveries: int
 
 
@@ -201,12 +340,21 @@ def solve(
     *,
     n_steps: int | None = None,
     dt: float | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    first_step: float | None = None,
+    max_step: float | None = None,
+    controller=None,
+    t_eval=None,
+    dense_output: bool = False,
+    events=None,
+    save_every: int | str | None = None,
     lam0=None,
     args: Any = None,
     throw: bool = True,
     project_initial: bool = False,
     chunk_size: int | None = None,
-    progress: bool | Callable[[int, int], None] = False,
+    progress: bool | Callable[[float, float], None] = False,
     max_recoveries: int = 0,
     checkpoint: str | os.PathLike | None = None,
     checkpoint_every: int | None = None,
@@ -214,123 +362,207 @@ def solve(
 ) -> Solution:
     """Integrate a partitioned index-2 DAE from ``t_span[0]`` to ``t_span[1]``.
 
+    Steps are chosen by error control (``rtol``, ``atol``) unless ``n_steps`` or ``dt`` asks
+    for constant steps. The vocabulary follows scipy's ``solve_ivp``.
+
     Parameters
     ----------
     problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
         Reuse one problem object and pass parameters through ``args``: the compiled loop is
-        cached per problem object, method and shapes, so new numbers (initial values,
-        ``t_span``, ``n_steps``, ``args`` values) do not recompile.
+        cached per problem object, method, options that shape the output and shapes, so new
+        numbers (initial values, ``t_span``, tolerances, ``n_steps``, ``args`` values) do not
+        recompile.
     method : LobattoIIIAIIIB
     t_span : (float, float)
-        ``(t0, t1)`` with ``t1 > t0``.
+        ``(t0, t1)``; ``t1 < t0`` integrates backwards.
     q0, p0 : array_like, shape (n,)
         Consistent initial values, ``φ(t0, q0, p0) = 0``.
-    n_steps, dt : int or float
-        Exactly one: the number of steps, or a maximal step size (the step used is
-        ``h = (t1 - t0) / ceil((t1 - t0) / dt)``, reported in ``stats["h"]``).
+    n_steps, dt : int or float, optional
+        Constant steps: their number, or a maximal step size (the step used is
+        ``h = (t1 - t0) / ceil(|t1 - t0| / dt)``, reported in ``stats["h"]``).
+    rtol, atol : float, optional
+        Adaptive steps (default ``1e-8``, ``1e-10``): the local error estimate of q and p is
+        kept below ``atol + rtol·|y|`` in the RMS norm, mapped so that the global error is
+        roughly proportional to rtol (:class:`~lobattodae.PIController`). λ is not error-controlled.
+    first_step, max_step : float, optional
+        Adaptive steps: the first step size (default: chosen from the initial slopes) and an
+        upper bound on all of them (default: none).
+    controller : PIController or ReversibleStepSize, optional
+        The step-size rule of adaptive steps (default ``PIController()``);
+        ``ReversibleStepSize()`` keeps the variable-step method symmetric for reversible
+        problems (bounded energy errors over long times).
+    t_eval : array_like, optional
+        Output times (within ``t_span``, sorted in the direction of integration) instead of
+        step points, from the dense output; memory is proportional to ``len(t_eval)``.
+        ``t_eval=[t1]`` keeps the final state only.
+    dense_output : bool
+        Keep every step's continuous extension: ``sol.sol(t) -> (q, p, lam)``.
+    events : callable or list of callables, optional
+        ``e(t, q, p, args) -> float``; zeros are located on the dense output and returned in
+        ``t_events``, ``q_events``, ... (one array per function). Attributes as in scipy:
+        ``e.terminal`` (True, or stop at the k-th zero) and ``e.direction`` (> 0: rising
+        zeros only, < 0: falling only). A terminal zero ends the run with a final step onto
+        it, so the final state satisfies the constraint to round-off.
+    save_every : int or 'final', optional
+        Keep every k-th step point (and the last), or only the final one.
     lam0 : array_like, shape (m,), optional
         Initial multiplier. Computed from the hidden constraint when omitted; checked
         against it when given.
     args : pytree, optional
         Passed to the problem functions.
     throw : bool
-        If True (default) a failed step raises :class:`NewtonFailure`; otherwise the
-        computed prefix is returned with ``success=False`` and the status.
+        If True (default) a failed run raises :class:`NewtonFailure`; otherwise the computed
+        prefix is returned with ``success=False`` and the status.
     project_initial : bool
         Replace ``p0`` by its least-squares projection onto the constraint
         {p : φ(t0, q0, p) = 0} (always, to round-off) instead of rejecting inconsistent values.
     chunk_size : int, optional
-        Steps per compiled chunk (default :data:`~lobattodae._loop.CHUNK`); progress, Ctrl-C
-        and checkpoints act between chunks.
+        Step attempts per compiled chunk (default :data:`~lobattodae._loop.CHUNK`); progress,
+        Ctrl-C and checkpoints act between chunks.
     progress : bool or callable
         ``True`` shows a progress bar on stderr once the run has taken more than a second; a
-        callable is called as ``progress(steps_done, n_steps)`` after each chunk. Ctrl-C
-        returns the computed prefix with status ``INTERRUPTED`` at the end of the chunk (a
-        second Ctrl-C stops at once).
+        callable is called after each chunk as ``progress(steps_done, n_steps)`` (constant
+        steps) or ``progress(t, t1)`` (adaptive). Ctrl-C returns the computed prefix with
+        status ``INTERRUPTED`` at the end of the chunk (a second Ctrl-C stops at once).
     max_recoveries : int
-        Automatic recovery (off by default): a step whose Newton iteration fails is retried as
-        2, 4, 8 or 16 substeps, at most this many times per solve; ``stats["recoveries"]``
-        counts them. The recovered step restarts the Jacobian and the predictor.
+        Constant steps only (off by default): a step whose Newton iteration fails is retried
+        as 2, 4, 8 or 16 substeps, at most this many times per solve; ``stats["recoveries"]``
+        counts them. Adaptive steps shrink a failed step by themselves.
     checkpoint : path, optional
         Write the computed prefix and the loop state to this file (format:
         :mod:`lobattodae._checkpoint`) every ``checkpoint_every`` steps (at chunk boundaries),
         at the end, and on Ctrl-C. Its directory must exist.
     checkpoint_every : int, optional
     resume : bool
-        Continue from ``checkpoint`` if it exists. It must come from the same run: problem
-        functions, method, ``args``, ``t_span``, step and initial values are checked. A resumed
-        run gives the same numbers, bit for bit, as an uninterrupted one.
+        Continue from ``checkpoint`` if it exists. It must come from the same run (problem
+        functions, method, ``args``, ``t_span``, steps or tolerances, output options, initial
+        values). A resumed run gives the same numbers, bit for bit, as an uninterrupted one.
 
     Returns
     -------
     Solution
     """
     check_float64()
-    opt = _Options.check(method, t_span, n_steps, dt, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume)
+    opt = _Options.check(
+        method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output, events,
+        save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume,
+    )
     # From here on a first Ctrl-C only asks the run to stop at the next chunk boundary (also
     # during validation and compilation), so it never lands inside JAX or between updates.
     with _deferred_interrupts() as interrupted:
         return _run(problem, method, opt, q0, p0, lam0, args, throw, project_initial, progress, interrupted)
 
 
+def _padded_t_eval(opt: _Options):
+    """t_eval padded with NaN to a power of two ≥ 16 (fewer distinct shapes to compile)."""
+    if opt.t_eval is None:
+        return None
+    size = max(16, 1 << (len(opt.t_eval) - 1).bit_length())
+    out = np.full(size, np.nan)
+    out[: len(opt.t_eval)] = opt.t_eval
+    return jnp.asarray(out)
+
+
+def _finished(opt: _Options, state: State) -> bool:
+    """The run is over: a failure or terminal event, or the end reached and every t_eval row written."""
+    if int(state.result) != Result.SUCCESSFUL:
+        return True
+    if not bool(opt.controller.done(state.controller)):
+        return False
+    return opt.t_eval is None or int(state.k_eval) >= len(opt.t_eval)
+
+
 def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_initial, progress, interrupted):
     """Validation, the loop state, the compiled chunks (progress, checkpoints, recovery), the
     Solution; ``interrupted()`` says whether Ctrl-C asked to stop."""
     q0, p0, lam0, phi0 = validate_and_residual(problem, opt.t0, q0, p0, lam0, args, project=project_initial)
-    report = _progress_reporter(progress)
-    controller = ConstantStepSize()
+    _check_events(opt.output.events, opt.t0, q0, p0, args)
+    report = _progress_reporter(progress, opt)
     f64 = jnp.float64
+    controller, output = opt.controller, opt.output
     state = init_compiled(
-        problem, method, controller, jnp.asarray(opt.t0, f64), jnp.asarray(opt.t1, f64), opt.n,
+        problem, method, controller, output, jnp.asarray(opt.t0, f64), jnp.asarray(opt.t1, f64), opt.control,
         jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0), args,
     )
-    run = _Progress(0, state, (), 0)
+    run = _Progress(state, (), (), (), 0)
     meta = _run_identity(problem, method, args, opt, q0, p0, lam0) if opt.checkpoint else None
     if opt.checkpoint and opt.resume and _checkpoint.exists(opt.checkpoint):
-        run = _resume(opt.checkpoint, meta, state)
-    failure: tuple[int, Result] | None = None  # (failed step, its code)
+        run = _resume(opt, meta, state)
+    t_eval = _padded_t_eval(opt)
+    failed = False
     start = time.perf_counter()
-    last_saved = run.done
+    last_saved = int(run.state.n_accepted)
     try:
-        while run.done < opt.n and not interrupted():
-            state, rec, count = run_compiled(problem, method, controller, run.state, args, opt.chunk)
-            count = int(count)
-            rows = run.rows + (_numpy_rows(rec, count),) if count else run.rows
-            if int(state.result) != Result.SUCCESSFUL:
-                rec_row = None
+        while not _finished(opt, run.state) and not interrupted():
+            state, chunk = run_compiled(problem, method, controller, output, run.state, args, opt.chunk, opt.every, t_eval)
+            rows, dense, events = _numpy_chunk(run, chunk)
+            if int(state.result) not in (Result.SUCCESSFUL, Result.EVENT):
+                recovered = None
                 if run.recoveries < opt.max_recoveries:
-                    rec_row = _recover_step(problem, method, args, state)
-                if rec_row is None:
-                    run = _Progress(run.done + count, state, rows, run.recoveries)
-                    failure = (run.done, Result(int(state.result)))
+                    recovered = _recover_step(problem, method, args, state)
+                if recovered is None:
+                    run = _Progress(state, rows, dense, events, run.recoveries)
+                    failed = True
                     break
-                state, row = rec_row
-                rows, count = rows + (row,), count + 1
-                run = _Progress(run.done + count, state, rows, run.recoveries + 1)
+                state, row = recovered
+                run = _Progress(state, rows + (row,), dense, events, run.recoveries + 1)
             else:
-                run = _Progress(run.done + count, state, rows, run.recoveries)
+                run = _Progress(state, rows, dense, events, run.recoveries)
             if report is not None:
-                report(run.done, opt.n)
-            if opt.checkpoint and opt.checkpoint_every and run.done - last_saved >= opt.checkpoint_every:
-                _save(opt.checkpoint, meta, run)
-                last_saved = run.done
+                report(*_progress_numbers(opt, run.state))
+            done = int(run.state.n_accepted)
+            if opt.checkpoint and opt.checkpoint_every and done - last_saved >= opt.checkpoint_every:
+                _save(opt.checkpoint, meta, run, opt)
+                last_saved = done
     except KeyboardInterrupt:  # a second Ctrl-C, or one outside the main thread's handler
         pass
-    was_interrupted = run.done < opt.n and failure is None
     if isinstance(report, _ProgressBar):
         report.close()
-    if opt.checkpoint and (run.done > last_saved or was_interrupted):
-        _save(opt.checkpoint, meta, run)
+    finished = _finished(opt, run.state)
+    if opt.checkpoint and (int(run.state.n_accepted) > last_saved or not finished):
+        _save(opt.checkpoint, meta, run, opt)
     elapsed = time.perf_counter() - start
-    return _assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failure, throw, elapsed)
+    return _assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failed, finished, throw, elapsed)
 
 
-def _numpy_rows(rec: Record, count: int) -> Record:
-    return Record(*(np.asarray(x)[:count] for x in rec))
+def _progress_numbers(opt: _Options, state: State):
+    if opt.adaptive:
+        return float(opt.controller.time(state.controller)), opt.t1
+    return int(state.n_accepted), opt.n
+
+
+def _check_events(events, t0, q0, p0, args) -> None:
+    """Each event function must return one finite number at the initial point."""
+    for i, ev in enumerate(events):
+        try:
+            value = np.asarray(ev.fn(jnp.asarray(t0), jnp.asarray(q0), jnp.asarray(p0), args), dtype=np.float64)
+        except Exception as exc:  # noqa: BLE001 - the user's function, reported with its name
+            raise LobattoDAEInputError(f"event function {ev.name!r} (events[{i}]) failed at t0: {exc}") from exc
+        if value.size != 1:
+            raise LobattoDAEInputError(
+                f"event function {ev.name!r} (events[{i}]) must return one number; it returned shape {value.shape}."
+            )
+        if not np.isfinite(value).all():
+            raise LobattoDAEInputError(f"event function {ev.name!r} (events[{i}]) is not finite at t0 ({float(value.ravel()[0])}).")
+
+
+def _numpy_chunk(run: _Progress, chunk):
+    """The rows, dense-output data and event zeros of a chunk, appended to the run's (NumPy)."""
+    rows, dense, events = run.rows, run.dense, run.events
+    k = int(chunk.n_rows)
+    if k:
+        rows = rows + (Record(*(np.asarray(x)[:k] for x in chunk.rows)),)
+    if chunk.dense is not None and int(chunk.n_dense):
+        dense = dense + (np.asarray(chunk.dense)[: int(chunk.n_dense)],)
+    if chunk.event_rows is not None and int(chunk.n_events):
+        e = int(chunk.n_events)
+        events = events + ((np.asarray(chunk.event_rows)[:e], np.asarray(chunk.event_index)[:e]),)
+    return rows, dense, events
 
 
 def _recover_step(problem, method, args, state: State):
-    """Retry the failed step of ``state`` as 2^j substeps; return ``(state, row)`` or None.
+    """Retry the failed (constant) step of ``state`` as 2^j substeps; return ``(state, row)``
+    or None.
 
     The substeps start afresh (no reused Jacobian, no predictor history: those belong to the
     step size h), and so does the step after the recovered one. The row's statistics are the
@@ -340,11 +572,15 @@ def _recover_step(problem, method, args, state: State):
     ctrl = state.controller
     t_start, h = controller.proposal(ctrl)
     for j in range(1, _RECOVERY_HALVINGS + 1):
-        sub = init_compiled(problem, method, controller, t_start, t_start + h, 1 << j, state.q, state.p, state.lam, args)
-        sub, rec, count = run_compiled(problem, method, controller, sub, args, 1 << _RECOVERY_HALVINGS)
-        if int(sub.result) != Result.SUCCESSFUL or int(count) != 1 << j:
+        sub = init_compiled(
+            problem, method, controller, Output(), t_start, t_start + h, ControlOptions(n=1 << j),
+            state.q, state.p, state.lam, args,
+        )
+        sub, chunk = run_compiled(problem, method, controller, Output(), sub, args, 1 << _RECOVERY_HALVINGS)
+        count = int(chunk.n_rows)
+        if int(sub.result) != Result.SUCCESSFUL or count != 1 << j:
             continue
-        rows = _numpy_rows(rec, int(count))
+        rows = Record(*(np.asarray(x)[:count] for x in chunk.rows))
         row = rows._replace(
             **{f: getattr(rows, f)[-1:] for f in ("t", "q", "p", "lam", "constraint", "drift")},
             iterations=np.asarray([rows.iterations.sum()], np.int32),
@@ -362,6 +598,8 @@ def _recover_step(problem, method, args, state: State):
             n_accepted=state.n_accepted + 1,
             n_newton=state.n_newton + sub.n_newton,
             n_jacobians=state.n_jacobians + sub.n_jacobians,
+            max_constraint=jnp.maximum(state.max_constraint, sub.max_constraint),
+            max_drift=jnp.maximum(state.max_drift, sub.max_drift),
         )
         return new, row
     return None
@@ -376,36 +614,57 @@ _init_stepper = jax.jit(
 # -- checkpoints ----------------------------------------------------------------------------------
 def _run_identity(problem, method, args, opt: _Options, q0, p0, lam0) -> dict:
     """What a checkpoint must match to be resumed: the problem's functions, the method, args,
-    the time grid and the initial values."""
+    the time grid or tolerances, the output options and the initial values."""
     return {
         "problem": _checkpoint.fingerprint_callable(problem),
         "method": repr(method),
         "args": _checkpoint.fingerprint_arrays(args) if args is not None else None,
         "t_span": [opt.t0, opt.t1],
-        "n_steps": opt.n,
-        "h": opt.h,
+        "steps": [opt.n, opt.h] if not opt.adaptive else [repr(opt.controller)] + [float(x) for x in opt.control[1:]],
+        "output": [
+            opt.output.dense, opt.every,
+            _checkpoint.fingerprint_arrays(opt.t_eval) if opt.t_eval is not None else None,
+            [_checkpoint.fingerprint_callable(ev.fn) + f"/{ev.terminal}/{ev.direction}" for ev in opt.output.events],
+        ],
         "initial_values": _checkpoint.fingerprint_arrays(np.asarray(q0), np.asarray(p0), np.asarray(lam0)),
     }
 
 
-def _save(path: str, meta: dict, run: _Progress) -> None:
-    rows = _concat(run.rows, run.state)
+def _row_arrays(run: _Progress, opt: _Options) -> dict:
+    rows = _concat(run.rows, run.state)._asdict()
+    n, m, s = run.state.q.shape[-1], run.state.lam.shape[-1], run.state.last.V.shape[0]
+    if opt.output.dense:
+        size = 2 + 2 * n + s * (2 * n + m)
+        rows["dense"] = np.concatenate(run.dense) if run.dense else np.zeros((0, size))
+    if opt.output.events:
+        rows["event_rows"] = np.concatenate([e[0] for e in run.events]) if run.events else np.zeros((0, 1 + 2 * n + m))
+        rows["event_index"] = np.concatenate([e[1] for e in run.events]) if run.events else np.zeros(0, np.int32)
+    return rows
+
+
+def _save(path: str, meta: dict, run: _Progress, opt: _Options) -> None:
+    rows = _row_arrays(run, opt)
     _checkpoint.save(
-        path, meta=meta, counters={"done": run.done, "recoveries": run.recoveries},
-        state=run.state, rows=rows._asdict(),
+        path, meta=meta, counters={"done": int(run.state.n_accepted), "rows": len(rows["t"]), "recoveries": run.recoveries}, state=run.state, rows=rows,
     )
 
 
-def _resume(path: str, meta: dict, template: State) -> _Progress:
-    counters, state, rows = _checkpoint.load(path, meta=meta, state_template=template, row_names=Record._fields)
-    done = int(counters.get("done", -1))
-    rec = Record(**rows)
-    if done < 0 or any(len(x) != done for x in rec) or int(state.n_accepted) != done:
+def _resume(opt: _Options, meta: dict, template: State) -> _Progress:
+    path = opt.checkpoint
+    names = list(Record._fields) + (["dense"] if opt.output.dense else []) + (
+        ["event_rows", "event_index"] if opt.output.events else []
+    )
+    counters, state, rows = _checkpoint.load(path, meta=meta, state_template=template, row_names=names)
+    count = int(counters.get("rows", -1))
+    rec = Record(**{f: rows[f] for f in Record._fields})
+    if count < 0 or any(len(x) != count for x in rec):
         raise _checkpoint.CheckpointError(
-            f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint (it holds {len(rec.t)} rows for "
-            f"{done} steps done); delete it or restart without resume."
+            f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint (it holds {len(rec.t)} rows, its "
+            f"counter says {count}); delete it or restart without resume."
         )
-    return _Progress(done, state, (rec,), int(counters.get("recoveries", 0)))
+    dense = (rows["dense"],) if opt.output.dense and len(rows["dense"]) else ()
+    events = ((rows["event_rows"], rows["event_index"]),) if opt.output.events and len(rows["event_index"]) else ()
+    return _Progress(state, (rec,) if count else (), dense, events, int(counters.get("recoveries", 0)))
 
 
 def _concat(rows: tuple, state: State) -> Record:
@@ -446,32 +705,40 @@ def _deferred_interrupts():
         signal.signal(signal.SIGINT, previous)
 
 
-def _progress_reporter(progress):
+def _progress_reporter(progress, opt):
     if progress is False or progress is None:
         return None
     if callable(progress):
         return progress
-    return _ProgressBar()
+    return _ProgressBar(adaptive=opt.adaptive, t0=opt.t0)
 
 
 class _ProgressBar:
-    """A progress bar on stderr that appears once a run has taken more than ``delay`` seconds."""
+    """A progress bar on stderr that appears once a run has taken more than ``delay`` seconds:
+    steps for constant steps, simulated time for adaptive ones."""
 
-    def __init__(self, delay: float = 1.0):
+    def __init__(self, delay: float = 1.0, adaptive: bool = False, t0: float = 0.0):
         self.start = time.perf_counter()
         self.delay = delay
         self.shown = False
+        self.adaptive = adaptive
+        self.t0 = t0
 
-    def __call__(self, done: int, total: int) -> None:
+    def __call__(self, done: float, total: float) -> None:
         el = time.perf_counter() - self.start
         if el < self.delay and not self.shown:
             return
         self.shown = True
-        frac = done / total
+        if self.adaptive:
+            frac = (done - self.t0) / (total - self.t0)
+            what = f"t = {done:.6g} of {total:.6g}"
+        else:
+            frac = done / total
+            what = f"{int(done)}/{int(total)} steps"
         eta = el / frac * (1 - frac) if frac > 0 else float("nan")
         fill = int(30 * frac)
-        sys.stderr.write(f"\r[{'#' * fill}{'.' * (30 - fill)}] {done}/{total} steps  {el:6.1f}s  eta {eta:6.1f}s")
-        if done >= total:
+        sys.stderr.write(f"\r[{'#' * fill}{'.' * (30 - fill)}] {what}  {el:6.1f}s  eta {eta:6.1f}s")
+        if frac >= 1:
             self.close()
         sys.stderr.flush()
 
@@ -484,9 +751,10 @@ class _ProgressBar:
 
 
 # -- the Solution -----------------------------------------------------------------------------------
-def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Progress, failure, throw, elapsed):
+def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Progress, failed, finished, throw,
+              elapsed):
     out = _concat(run.rows, run.state)
-    n_ok = len(out.t)
+    state = run.state
     # Non-finite values reported as success would be a bug upstream; never let them through.
     finite = np.all(np.isfinite(out.q), axis=1) & np.all(np.isfinite(out.p), axis=1) & np.all(np.isfinite(out.lam), axis=1)
     failed_step, status = None, Result.SUCCESSFUL
@@ -494,53 +762,91 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
         n_ok = int(np.flatnonzero(~finite)[0])
         failed_step, status = n_ok, Result.NONFINITE
         out = Record(*(x[:n_ok] for x in out))
-    elif failure is not None:
-        failed_step, status = failure[0], failure[1]
-    elif n_ok < opt.n:
+    elif failed or not Result(int(state.result)).success:  # failed here, or in the run resumed from
+        failed_step, status = int(state.n_accepted), Result(int(state.result))
+    elif not finished:
         status = Result.INTERRUPTED
-    t = np.concatenate([[opt.t0], out.t])
-    excursions = int(run.state.stepper.monitor.excursions)
+    elif int(state.result) == Result.EVENT:
+        status = Result.EVENT
+    with_initial = opt.t_eval is None
+    t = np.concatenate([[opt.t0], out.t]) if with_initial else out.t
+
+    def column(x0, rows):
+        return np.vstack([x0[None], rows]) if with_initial else rows
+
+    def scalar(x0, rows):
+        return np.concatenate([[x0], rows]) if with_initial else rows
+
+    excursions = int(state.stepper.monitor.excursions)
     stats = {
         "newton_iterations": out.iterations,
         "residual_norm": out.residual_norm,
-        "constraint_residual": np.concatenate([[phi0], out.constraint]),
-        "multiplier_drift": np.concatenate([[0.0], out.drift]),
+        "constraint_residual": scalar(phi0, out.constraint),
+        "multiplier_drift": scalar(0.0, out.drift),
         "lam_resync": out.resync,
         "lam_resets": int(np.count_nonzero(out.resync)),
         "lam_excursions": excursions,
-        "n_jacobians": int(run.state.n_jacobians),
-        "n_newton": int(run.state.n_newton),
+        "max_constraint_residual": float(state.max_constraint),
+        "max_multiplier_drift": float(state.max_drift),
+        "n_jacobians": int(state.n_jacobians),
+        "n_newton": int(state.n_newton),
+        "n_steps": int(state.n_accepted),
+        "n_rejected": int(state.n_rejected),
         "h": opt.h,
-        "n_steps": opt.n,
         "failed_step": failed_step,
         "recoveries": run.recoveries,
         "compile_and_run_time": elapsed,
     }
-    success = status == Result.SUCCESSFUL and n_ok == opt.n
+    events = _event_lists(opt, run, q0.shape[-1], lam0.shape[-1])
+    sol = None
+    if opt.output.dense:
+        dense = np.concatenate(run.dense) if run.dense else np.zeros((0, 2 + 2 * q0.shape[-1]))
+        sol = DenseOutput(method.pair, dense, q0.shape[-1], lam0.shape[-1], opt.t0)
+    success = status.success and failed_step is None
     message = status.message
     if failed_step is not None:
-        tf = opt.t0 + failed_step * opt.h
+        tf, hf = (float(x) for x in opt.controller.proposal(state.controller))
         tried = f" (after {run.recoveries} recovered steps; max_recoveries={opt.max_recoveries})" if opt.max_recoveries else ""
-        message = f"Step {failed_step} (t = {tf:.6g}, h = {opt.h:.3g}) failed{tried}: {status.message}"
+        message = f"Step {failed_step} (t = {tf:.6g}, h = {hf:.3g}) failed{tried}: {status.message}"
         if throw:
             raise NewtonFailure(message, step=failed_step, t=tf, reason=status.name.lower())
     elif status == Result.INTERRUPTED:
-        message = f"Interrupted after {n_ok} of {opt.n} steps (t = {t[-1]:.6g}); the computed prefix is returned."
+        t_now = float(opt.controller.time(state.controller))
+        of = f" of {opt.n}" if opt.n is not None else ""
+        message = f"Interrupted after {int(state.n_accepted)}{of} steps (t = {t_now:.6g}); the computed prefix is returned."
     if method.lam_start == "previous" and excursions:
         k = _first_excursion(out.drift)
         note = (
             f"the multiplier λ_k left its normal band around the hidden constraint in {excursions} steps "
-            f"(‖λ_k − λ(q_k, p_k)‖∞ up to {float(np.max(out.drift)):.2e}, first at t ≈ {t[k + 1]:.6g}). With "
-            "lam_start='previous' (the paper's scheme) λ errors are carried with |R(∞)| = 1 and can grow, and with "
+            f"(‖λ_k − λ(q_k, p_k)‖∞ up to {float(state.max_drift):.2e}, first at t ≈ {out.t[min(k, len(out.t) - 1)] if len(out.t) else opt.t0:.6g}). "
+            "With lam_start='previous' (the paper's scheme) λ errors are carried with |R(∞)| = 1 and can grow, and with "
             "them the errors in q and p. Use lam_start='auto' (re-synchronise when λ drifts) or 'consistent', or a "
             "smaller step."
         )
         message = f"{message} Warning: {note}"
         warnings.warn(note, RuntimeWarning, stacklevel=3)
     return Solution(
-        t, np.vstack([q0[None], out.q]), np.vstack([p0[None], out.p]), np.vstack([lam0[None], out.lam]),
-        bool(success), status, message, stats, problem, method, args,
+        t, column(q0, out.q), column(p0, out.p), column(lam0, out.lam),
+        bool(success), status, message, stats, problem, method, args, *events, sol,
     )
+
+
+def _event_lists(opt: _Options, run: _Progress, n: int, m: int):
+    """``(t_events, q_events, p_events, lam_events)``: one array per event function (or Nones)."""
+    if not opt.output.events:
+        return None, None, None, None
+    if run.events:
+        rows = np.concatenate([e[0] for e in run.events])
+        index = np.concatenate([e[1] for e in run.events])
+    else:
+        rows, index = np.zeros((0, 1 + 2 * n + m)), np.zeros(0, np.int32)
+    out = ([], [], [], [])
+    for j in range(len(opt.output.events)):
+        mine = rows[index == j]
+        mine = mine[np.argsort(mine[:, 0] * np.sign(opt.t1 - opt.t0), kind="stable")]
+        for lst, part in zip(out, (mine[:, 0], mine[:, 1 : 1 + n], mine[:, 1 + n : 1 + 2 * n], mine[:, 1 + 2 * n :])):
+            lst.append(part)
+    return out
 
 
 def _first_excursion(drift: np.ndarray) -> int:

@@ -19,6 +19,7 @@ from ._newton import JacobianCache, NewtonOptions, empty_jacobian_cache, newton_
 from ._problem import consistent_lambda
 from ._results import Result
 from ._tableau import LobattoPair, lobatto_pair
+from ._dense import DenseStep
 
 __all__ = ["LobattoIIIAIIIB", "StepInfo", "StepperState", "LAM_START_MODES"]
 
@@ -83,6 +84,8 @@ class StepInfo(NamedTuple):
     n_jacobians: jax.Array
     drift: jax.Array  # ‖λ_1 − λ(t_1, q_1, p_1)‖∞
     resync: jax.Array  # bool: this step started from λ(t_0, q_0, p_0) instead of λ_0 ("auto")
+    error: jax.Array  # (2n,) local error estimate of (q_1, p_1), see LobattoIIIAIIIB.step
+    dense: DenseStep  # the step's continuous extension (lobattodae._dense)
 
 
 @dataclass(frozen=True)
@@ -223,7 +226,20 @@ class LobattoIIIAIIIB:
         info : StepInfo
             ``result`` (a :class:`Result` code; anything but 0 means the step failed and
             ``q1, p1, lam1`` are not a solution), ``iterations``, ``residual_norm``,
-            ``n_jacobians``, ``drift`` (‖λ_1 − λ(t_1, q_1, p_1)‖∞), ``resync``.
+            ``n_jacobians``, ``drift`` (‖λ_1 − λ(t_1, q_1, p_1)‖∞), ``resync``, ``error``
+            (the local error estimate below) and ``dense`` (the continuous extension).
+
+        The error estimate is the difference between the step and the embedded formula
+        ``q̂_1 = q_0 + h Σ_j b̂_j V_j``, ``p̂_1 = p_0 + h Σ_j b̂_j W_j`` with weights
+        ``b̂ = b - e`` exact for polynomials of degree s - 2
+        (:attr:`~lobattodae.LobattoPair.error_weights`):
+
+            err = h Σ_j e_j (V_j, W_j) = O(h^s).
+
+        It estimates the local error of the embedded order-(s-1) formula, not the step's own
+        ``O(h^(2s-1))``; the adaptive controller (:class:`~lobattodae.PIController`) maps the
+        user's tolerance accordingly so that the global error is proportional to it. It costs
+        no function evaluations.
         state : StepperState
             To be passed to the next step (Jacobian reuse, predictor, λ bookkeeping).
         """
@@ -261,7 +277,12 @@ class LobattoIIIAIIIB:
             resync=jnp.logical_and(excursion, self.lam_start == "auto"),
             monitor=monitor,
         )
-        info = StepInfo(ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians, drift, state.resync)
+        e = pair.error_weights[None]
+        error = h * jnp.concatenate([se.tableau_product(e, stages.V)[0], se.tableau_product(e, stages.W)[0]])
+        dense = DenseStep(t0, h, q0, p0, stages.V, stages.W, stages.Lam)
+        info = StepInfo(
+            ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians, drift, state.resync, error, dense
+        )
         return q1, p1, lam1, info, new_state
 
     # -- what a step starts from and hands on ------------------------------------------------

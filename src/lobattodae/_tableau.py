@@ -369,6 +369,28 @@ class LobattoPair:
         s = self.s
         return {"q": 2 * s - 2, "p": 2 * s - 2, "lam": s if s % 2 == 0 else s - 1}
 
+    @functools.cached_property
+    def error_weights(self) -> np.ndarray:
+        r"""``e = b - b̂`` of the embedded quadrature used for the local error estimate.
+
+        ``b̂`` is the interpolatory rule on the first s-1 nodes (``b̂_s = 0``), exact for
+        polynomials of degree ``s - 2``. So ``e`` annihilates them, ``Σ_j e_j c_j^(k-1) = 0`` for
+        k = 1..s-1, and ``h Σ_j e_j V_j`` is a scaled (s-1)-th divided difference of the stage
+        slopes: ``O(h^s)``, the local error of the embedded order-(s-1) formula (see
+        :mod:`lobattodae._stepper` for how the step-size controller uses it). Read-only.
+        """
+        s, c = self.s, self.c
+        b_hat = np.zeros(s)
+        x, w = np.polynomial.legendre.leggauss(s)  # exact to degree 2s - 1 >= s - 2
+        b_hat[: s - 1] = 0.5 * (w @ lagrange_basis(c[: s - 1], 0.5 * (1.0 + x)))
+        out = self.b - b_hat
+        out.setflags(write=False)
+        return out
+
+    def error_order(self) -> int:
+        """The power of h in the local error estimate ``h Σ_j e_j (V_j, W_j)``: s."""
+        return self.s
+
     @property
     def r_infinity(self) -> int:
         """``R(∞) = (-1)^(s-1)`` of IIIA: the factor by which a λ error is carried per step."""

@@ -1,0 +1,369 @@
+r"""Step-size controllers: where the next step goes, and whether the last one is kept.
+
+The contract (every controller implements it; all methods are pure and traceable, the
+controller object itself is static configuration):
+
+1. ``init(problem, method, t0, t1, q0, p0, lam0, args, options) -> state``: the controller's
+   memory before the first step. ``options`` (:class:`ControlOptions`) holds the traced
+   numbers (tolerances, step bounds), so new values never recompile.
+2. ``proposal(state) -> (t, h)``: the next step starts at t and is h long (h < 0 backwards);
+   it never passes the end of the interval.
+3. ``adapt(state, problem, args, report) -> (accept, state, result)``: after a step
+   (:class:`StepReport`): keep it or not, the next proposal, and a :class:`Result` code
+   (``SUCCESSFUL``, or why the run cannot go on).
+4. ``done(state)``, ``time(state)``: whether the end is reached; the current step point.
+5. ``stop_at(state, t)``: end the run at t instead (a terminal event): the next proposal
+   lands on t exactly.
+
+Three controllers:
+
+* :class:`ConstantStepSize`: n equal steps; a failed Newton solve ends the run.
+* :class:`PIController`: error-controlled steps (Gustafsson's PI rule on the embedded
+  estimate of :meth:`~lobattodae.LobattoIIIAIIIB.step`), automatic first step, rejections.
+* :class:`ReversibleStepSize`: Hairer & Söderlind's explicit time-reversible control: the
+  variable-step method stays symmetric (bounded energy errors on reversible problems).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ._problem import vector_field
+from ._results import Result
+
+__all__ = [
+    "ConstantStepSize",
+    "ControlOptions",
+    "PIController",
+    "ReversibleStepSize",
+    "StepReport",
+    "phase_space_speed",
+    "initial_step",
+]
+
+#: The smallest step size relative to the time, ``|h| ≥ MIN_RELATIVE_STEP·max(|t|, |t1 - t0|)``;
+#: below it the run ends with ``Result.STEP_SIZE_TOO_SMALL``.
+MIN_RELATIVE_STEP = 1e-14
+#: A step that would leave less than this fraction of itself before the end is stretched to it.
+END_STRETCH = 0.01
+
+
+class ControlOptions(NamedTuple):
+    """The traced numbers a controller needs (new values do not recompile)."""
+
+    n: Any = 1  # ConstantStepSize: number of steps
+    rtol: Any = 1e-8
+    atol: Any = 1e-10
+    first_step: Any = 0.0  # 0: automatic
+    max_step: Any = jnp.inf
+
+    def cast(self, dtype) -> "ControlOptions":
+        return ControlOptions(
+            jnp.asarray(self.n, jnp.int32),
+            *(jnp.asarray(x, dtype) for x in (self.rtol, self.atol, self.first_step, self.max_step)),
+        )
+
+
+class StepReport(NamedTuple):
+    """What a controller sees of a step from t to t + h."""
+
+    ok: jax.Array  # bool: the stage equations were solved
+    result: jax.Array  # the stepper's Result code
+    t: jax.Array
+    h: jax.Array
+    y0: jax.Array  # (2n,) (q0, p0)
+    y1: jax.Array  # (2n,) (q1, p1)
+    error: jax.Array  # (2n,) local error estimate
+    q1: jax.Array
+    p1: jax.Array
+    lam1: jax.Array
+
+
+def _rms(x):
+    return jnp.sqrt(jnp.mean(x * x))
+
+
+def _end_clipped(t, h, t_end):
+    """``h``, shortened to end at ``t_end`` (or stretched to it when that is within
+    END_STRETCH of h), so a run ends on ``t_end`` exactly."""
+    rest = t_end - t
+    return jnp.where(jnp.abs(rest) <= (1.0 + END_STRETCH) * jnp.abs(h), rest, h)
+
+
+def _too_small(h, t, t0, t_end):
+    return jnp.abs(h) < MIN_RELATIVE_STEP * jnp.maximum(jnp.abs(t), jnp.abs(t_end - t0))
+
+
+# -- constant steps -----------------------------------------------------------------------------
+class ConstantState(NamedTuple):
+    """Step k of n on ``[t0, t1]``: ``t_k = t0 + k h``, ``h = (t1 - t0) / n``, ``t_n = t1``; a
+    terminal event moves the end to ``t_end``."""
+
+    k: jax.Array  # int32
+    n: jax.Array  # int32
+    t0: jax.Array
+    t1: jax.Array
+    t_end: jax.Array
+
+
+@dataclass(frozen=True)
+class ConstantStepSize:
+    """``n`` equal steps from ``t0`` to ``t1`` (negative h when ``t1 < t0``); every step whose
+    stage equations are solved is accepted, a failed one ends the run."""
+
+    def init(self, problem, method, t0, t1, q0, p0, lam0, args, options: ControlOptions) -> ConstantState:
+        return ConstantState(jnp.asarray(0, jnp.int32), jnp.asarray(options.n, jnp.int32), t0, t1, t1)
+
+    @staticmethod
+    def _grid(st: ConstantState, k):
+        h = (st.t1 - st.t0) / st.n
+        return jnp.where(k >= st.n, st.t1, st.t0 + k * h)
+
+    def time(self, st: ConstantState):
+        t = self._grid(st, st.k)
+        direction = jnp.sign(st.t1 - st.t0)
+        return jnp.where(direction * (t - st.t_end) >= 0, st.t_end, t)
+
+    def proposal(self, st: ConstantState):
+        t = self.time(st)
+        t_next = self._grid(st, st.k + 1)
+        direction = jnp.sign(st.t1 - st.t0)
+        return t, jnp.where(direction * (t_next - st.t_end) > 0, st.t_end, t_next) - t
+
+    def adapt(self, st: ConstantState, problem, args, report: StepReport):
+        result = jnp.where(report.ok, Result.SUCCESSFUL, report.result).astype(jnp.int32)
+        return report.ok, st._replace(k=st.k + report.ok.astype(jnp.int32)), result
+
+    def done(self, st: ConstantState):
+        direction = jnp.sign(st.t1 - st.t0)
+        return (st.k >= st.n) | (direction * (self.time(st) - st.t_end) >= 0) & (st.k > 0)
+
+    def stop_at(self, st: ConstantState, t_stop) -> ConstantState:
+        return st._replace(t_end=t_stop)
+
+
+# -- error control ------------------------------------------------------------------------------------
+def initial_step(problem, t0, t1, q0, p0, lam0, args, rtol, atol, order, max_step):
+    """A first step size from the initial slope and its change (Hairer, Nørsett & Wanner,
+    *Solving ODEs I*, II.4; as in scipy's ``select_initial_step``), for an error estimate of
+    local order ``order + 1``; never longer than the interval or ``max_step``."""
+    span = t1 - t0
+    direction = jnp.where(span >= 0, 1.0, -1.0)
+    y0 = jnp.concatenate([q0, p0])
+    f0 = jnp.concatenate(vector_field(problem, t0, q0, p0, lam0, args))
+    scale = atol + rtol * jnp.abs(y0)
+    d0, d1 = _rms(y0 / scale), _rms(f0 / scale)
+    h0 = jnp.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / jnp.maximum(d1, 1e-300))
+    h0 = jnp.minimum(h0, jnp.abs(span))
+    n = q0.shape[-1]
+    y1 = y0 + direction * h0 * f0
+    f1 = jnp.concatenate(vector_field(problem, t0 + direction * h0, y1[:n], y1[n:], lam0, args))
+    d2 = _rms((f1 - f0) / scale) / h0
+    big = jnp.maximum(d1, d2)
+    h1 = jnp.where(big <= 1e-15, jnp.maximum(1e-6, h0 * 1e-3), (0.01 / jnp.maximum(big, 1e-300)) ** (1.0 / (order + 1)))
+    h = jnp.minimum(jnp.minimum(100 * h0, h1), jnp.minimum(jnp.abs(span), max_step))
+    return direction * jnp.where(jnp.isfinite(h) & (h > 0), h, jnp.abs(span))
+
+
+class AdaptiveState(NamedTuple):
+    """The PI controller's memory."""
+
+    t: jax.Array  # the current step point
+    h: jax.Array  # the next step size (signed, before clipping to the end)
+    t0: jax.Array
+    t_end: jax.Array
+    err_prev: jax.Array  # the last accepted step's scaled error (PI memory)
+    rejected: jax.Array  # bool: the last attempt was rejected (no growth on the next step)
+    rtol: jax.Array  # internal tolerances (see PIController)
+    atol: jax.Array
+    max_step: jax.Array
+    order: jax.Array  # k = s, the power of h in the error estimate
+    n_rejected: jax.Array  # int32
+
+
+@dataclass(frozen=True)
+class PIController:
+    r"""Error-controlled step sizes: Gustafsson's PI rule on the embedded error estimate.
+
+    The scaled error of a step is ``err = rms(e_i / (atol' + rtol' max(|y0_i|, |y1_i|)))`` over
+    q and p (λ is not error-controlled, as for the algebraic variables of index-2 DAEs in
+    DAE codes). A step is kept when ``err ≤ 1``; the next step is
+
+        h_new = h · clip(safety · err^(-β₁/k) · err_prev^(β₂/k), fac_min, fac_max)
+
+    with ``k = s`` (the estimate is ``O(h^s)``, :meth:`~lobattodae.LobattoIIIAIIIB.step`),
+    ``β₁ = 0.7``, ``β₂ = 0.4`` and no growth right after a rejection; a step whose Newton solve
+    fails is retried with a quarter of the size. Factors in ``[1, 1.2]`` keep h (and the
+    reused Jacobian, see ``H_CHANGE_REFRESH``). The estimate is that of the embedded
+    order-(s-1) formula, while the step's own global error is ``O(h^(2s-2))``; the user's
+    tolerances are therefore mapped (as RADAU5 does for its lower-order estimate) to
+
+        rtol' = c_tol · rtol^κ,  atol' = atol · rtol'/rtol,   κ = s / (2s - 2),
+
+    so that ``h ∝ rtol'^(1/s) = rtol^(1/(2s-2))`` and the global error is proportional to
+    rtol. ``c_tol`` is calibrated on the examples (``docs/verification.md``).
+    """
+
+    safety: float = 0.9
+    fac_min: float = 0.2
+    fac_max: float = 5.0
+    beta1: float = 0.7
+    beta2: float = 0.4
+    hysteresis: float = 1.2
+    c_tol: float = 1.0
+
+    def init(self, problem, method, t0, t1, q0, p0, lam0, args, options: ControlOptions) -> AdaptiveState:
+        s = method.stages
+        kappa = s / (2.0 * s - 2.0)
+        rtol = self.c_tol * options.rtol**kappa
+        atol = options.atol * (rtol / options.rtol)
+        auto = initial_step(problem, t0, t1, q0, p0, lam0, args, rtol, atol, s - 1, options.max_step)
+        direction = jnp.where(t1 >= t0, 1.0, -1.0)
+        h = jnp.where(options.first_step > 0, direction * jnp.minimum(options.first_step, jnp.abs(t1 - t0)), auto)
+        dtype = q0.dtype
+        return AdaptiveState(
+            t=t0, h=h.astype(dtype), t0=t0, t_end=t1, err_prev=jnp.asarray(1.0, dtype),
+            rejected=jnp.asarray(False), rtol=rtol, atol=atol, max_step=options.max_step,
+            order=jnp.asarray(float(s), dtype), n_rejected=jnp.asarray(0, jnp.int32),
+        )
+
+    def proposal(self, st: AdaptiveState):
+        return st.t, _end_clipped(st.t, st.h, st.t_end)
+
+    def adapt(self, st: AdaptiveState, problem, args, report: StepReport):
+        k = st.order
+        scale = st.atol + st.rtol * jnp.maximum(jnp.abs(report.y0), jnp.abs(report.y1))
+        err = _rms(report.error / scale)
+        usable = report.ok & jnp.isfinite(err)
+        err = jnp.where(usable, err, jnp.inf)
+        accept = err <= 1.0
+        safe_err = jnp.maximum(err, 1e-10)
+        grow = self.safety * safe_err ** (-self.beta1 / k) * st.err_prev ** (self.beta2 / k)
+        grow = jnp.clip(grow, self.fac_min, jnp.where(st.rejected, 1.0, self.fac_max))
+        grow = jnp.where((grow >= 1.0) & (grow <= self.hysteresis), 1.0, grow)
+        shrink = jnp.where(usable, jnp.clip(self.safety * safe_err ** (-1.0 / k), self.fac_min, 0.9), 0.25)
+        h_new = report.h * jnp.where(accept, grow, shrink)
+        h_new = jnp.sign(h_new) * jnp.minimum(jnp.abs(h_new), st.max_step)
+        reaches_end = report.t + report.h == st.t_end
+        t = jnp.where(accept, jnp.where(reaches_end, st.t_end, report.t + report.h), st.t)
+        new = st._replace(
+            t=t, h=h_new,
+            err_prev=jnp.where(accept, jnp.maximum(err, 1e-4), st.err_prev),
+            rejected=~accept,
+            n_rejected=st.n_rejected + (~accept).astype(jnp.int32),
+        )
+        finished = accept & (t == st.t_end)
+        small = ~finished & _too_small(h_new, t, st.t0, st.t_end)
+        result = jnp.where(small, Result.STEP_SIZE_TOO_SMALL, Result.SUCCESSFUL).astype(jnp.int32)
+        return accept, new, result
+
+    def done(self, st: AdaptiveState):
+        return st.t == st.t_end
+
+    def time(self, st: AdaptiveState):
+        return st.t
+
+    def stop_at(self, st: AdaptiveState, t_stop) -> AdaptiveState:
+        return st._replace(t_end=t_stop, h=t_stop - st.t)
+
+
+
+# -- time-reversible control ------------------------------------------------------------------------
+class ReversibleState(NamedTuple):
+    """Hairer & Söderlind's control variable ``ρ_{n+1/2}`` (steps ``h = ε / ρ``) and the end."""
+
+    t: jax.Array
+    rho: jax.Array
+    epsilon: jax.Array
+    t0: jax.Array
+    t_end: jax.Array
+    direction: jax.Array
+
+
+def phase_space_speed(t, q, p, lam, f, g, args):
+    """The default step density ``ρ = ‖(f, g)‖₂``: steps inversely proportional to the speed
+    in phase space."""
+    return jnp.sqrt(jnp.sum(f * f) + jnp.sum(g * g))
+
+
+@dataclass(frozen=True)
+class ReversibleStepSize:
+    r"""Explicit, time-reversible step-size control (Hairer & Söderlind, SIAM J. Sci. Comput.
+    26, 2005) for reversible problems.
+
+    With a step density ``ρ(y) > 0`` (steps ``h ∝ 1/ρ``) and ``G(y) = d/dt log ρ(y(t))``
+    (along the vector field, by forward-mode differentiation), the control variable is
+    updated symmetrically around each step point,
+
+        ρ_{1/2} = ρ(y_0) + (ε/2) G(y_0),   y_{n+1} = Φ_{ε/ρ_{n+1/2}}(y_n),
+        ρ_{n+3/2} = ρ_{n+1/2} + ε G(y_{n+1}),
+
+    which is the leapfrog discretisation of ``dρ/dτ = G ρ⁰`` in a fictive time τ with
+    ``dt/dτ = 1/ρ``. For a symmetric one-step map Φ and ``G`` odd under the reversing
+    symmetry (true when ρ is even under it, as the default is) the whole variable-step map
+    ``(y_n, ρ_{n-1/2}) → (y_{n+1}, ρ_{n+1/2})`` is reversible, so energy errors stay bounded
+    on reversible problems where the error-controlled (PI) steps make them drift. There is
+    no error test and no rejection; ``ε`` is set so that the first step equals the one the
+    PI controller would choose for ``rtol``/``atol`` (or ``first_step``). Use it with the
+    symmetric scheme, ``lam_start="previous"`` or ``"auto"``.
+
+    Parameters
+    ----------
+    density : callable, optional
+        ``density(t, q, p, lam, f, g, args) -> ρ > 0`` with ``f, g`` the vector field at the
+        point; default :func:`phase_space_speed`, ``‖(f, g)‖₂``. It must be a fixed
+        (hashable) function object.
+    """
+
+    density: Callable[..., Any] = phase_space_speed
+
+    def _rho_and_g(self, problem, t, q, p, lam, args):
+        def log_rho(tt, qq, pp):
+            f, g = vector_field(problem, tt, qq, pp, lam, args)
+            return jnp.log(self.density(tt, qq, pp, lam, f, g, args))
+
+        f, g = vector_field(problem, t, q, p, lam, args)
+        value, rate = jax.jvp(log_rho, (t, q, p), (jnp.ones_like(t), f, g))
+        return jnp.exp(value), rate
+
+    def init(self, problem, method, t0, t1, q0, p0, lam0, args, options: ControlOptions) -> ReversibleState:
+        s = method.stages
+        kappa = s / (2.0 * s - 2.0)
+        rtol = options.rtol**kappa
+        atol = options.atol * (rtol / options.rtol)
+        auto = jnp.abs(initial_step(problem, t0, t1, q0, p0, lam0, args, rtol, atol, s - 1, options.max_step))
+        h0 = jnp.where(options.first_step > 0, options.first_step, auto)
+        rho0, rate = self._rho_and_g(problem, t0, q0, p0, lam0, args)
+        epsilon = h0 * rho0
+        return ReversibleState(
+            t=t0, rho=rho0 + 0.5 * epsilon * rate, epsilon=epsilon, t0=t0, t_end=t1,
+            direction=jnp.where(t1 >= t0, 1.0, -1.0).astype(q0.dtype),
+        )
+
+    def proposal(self, st: ReversibleState):
+        return st.t, _end_clipped(st.t, st.direction * st.epsilon / st.rho, st.t_end)
+
+    def adapt(self, st: ReversibleState, problem, args, report: StepReport):
+        t1 = jnp.where(report.t + report.h == st.t_end, st.t_end, report.t + report.h)
+        _, rate = self._rho_and_g(problem, t1, report.q1, report.p1, report.lam1, args)
+        rho = st.rho + st.epsilon * rate
+        # ρ must stay positive: a density that changes by more than a factor 4 within one step
+        # means ε is too large for it (the clamp then breaks reversibility, never the run).
+        rho = jnp.clip(rho, 0.25 * st.rho, 4.0 * st.rho)
+        ok = report.ok
+        new = st._replace(t=jnp.where(ok, t1, st.t), rho=jnp.where(ok, rho, st.rho))
+        result = jnp.where(ok, Result.SUCCESSFUL, report.result).astype(jnp.int32)
+        return ok, new, result
+
+    def done(self, st: ReversibleState):
+        return st.t == st.t_end
+
+    def time(self, st: ReversibleState):
+        return st.t
+
+    def stop_at(self, st: ReversibleState, t_stop) -> ReversibleState:
+        return st._replace(t_end=t_stop)

@@ -1,0 +1,127 @@
+r"""Dense output: the continuous extension of one Lobatto IIIA-IIIB step.
+
+Lobatto IIIA is the collocation method of the nodes ``c``: the polynomial of degree s
+
+    u(t_0 + θh) = q_0 + h Σ_j (∫_0^θ l_j) V_j                                  (q)
+
+(``l_j`` the Lagrange basis of the nodes) interpolates ``q_0``, passes through every stage
+``Q_i = u(t_0 + c_i h)`` (``a_ij = ∫_0^{c_i} l_j``) and ends at ``q_1 = u(t_0 + h)``
+(``a_sj = b_j``). The same construction with the slopes ``W_j = g(t_j, Q_j, P_j, Λ_j)``
+
+    v(t_0 + θh) = p_0 + h Σ_j (∫_0^θ l_j) W_j                                  (p)
+
+passes through the IIIA momenta ``p̃_i`` of row (3) of the stage system, where
+``φ(t_i, Q_i, p̃_i) = 0`` is imposed, and ends at ``p_1``; so the constraint holds exactly at
+every node and the dense output leaves it only between nodes, by the interpolation error.
+The multiplier is interpolated at the nodes,
+
+    λ(t_0 + θh) = Σ_j l_j(θ) Λ_j                                              (λ)
+
+(degree s - 1; ``Λ_1`` is the step's start multiplier). Observed orders of the maximum
+error between step points are in ``docs/verification.md``; at the step points the values
+are the step's own (``θ = 1`` gives ``q_1, p_1, λ_1`` exactly in the solver, which stores
+them rather than re-evaluating the polynomials).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._tableau import LobattoPair, lagrange_basis
+
+__all__ = ["DenseOutput", "DenseStep", "evaluate", "empty_dense_step", "integrated_basis"]
+
+
+class DenseStep(NamedTuple):
+    """What dense output needs from one step (a pytree; the stage slopes and multipliers)."""
+
+    t0: jax.Array
+    h: jax.Array
+    q0: jax.Array  # (n,)
+    p0: jax.Array  # (n,)
+    V: jax.Array  # (s, n)
+    W: jax.Array  # (s, n)
+    Lam: jax.Array  # (s, m)
+
+
+def empty_dense_step(t0, q0, p0, lam0, s: int) -> DenseStep:
+    """A zero-length "step" at ``(t0, q0, p0, λ0)``: evaluates to those values at ``t0``."""
+    n, m = q0.shape[-1], lam0.shape[-1]
+    zeros = jnp.zeros((s, n), q0.dtype)
+    return DenseStep(
+        jnp.asarray(t0, q0.dtype), jnp.zeros((), q0.dtype), q0, p0, zeros, zeros,
+        jnp.broadcast_to(lam0, (s, m)),
+    )
+
+
+def integrated_basis(c: np.ndarray, theta):
+    """``(∫_0^θ l_j)_j`` for the nodes c at (traced) θ, by s-point Gauss-Legendre on ``[0, θ]``
+    (exact: the integrand has degree s - 1) with the product-form basis."""
+    x, w = np.polynomial.legendre.leggauss(c.shape[0])
+    tau = 0.5 * theta * (1.0 + jnp.asarray(x, theta.dtype))
+    return 0.5 * theta * (jnp.asarray(w, theta.dtype) @ lagrange_basis(c, tau))
+
+
+def evaluate(pair: LobattoPair, step: DenseStep, t):
+    """``(q(t), p(t), λ(t))`` from the polynomials (q), (p), (λ) of ``step`` at a scalar t.
+
+    A zero-length step (no step taken yet) evaluates to its start values.
+    """
+    t = jnp.asarray(t, step.q0.dtype)
+    safe_h = jnp.where(step.h == 0, 1.0, step.h)
+    theta = jnp.where(step.h == 0, 0.0, (t - step.t0) / safe_h)
+    k = integrated_basis(pair.c, theta)
+    q = step.q0 + step.h * (k @ step.V)
+    p = step.p0 + step.h * (k @ step.W)
+    lam = lagrange_basis(pair.c, theta[None])[0] @ step.Lam
+    return q, p, lam
+
+
+def _evaluate_many(pair: LobattoPair, steps: DenseStep, t):
+    return jax.vmap(lambda st, tt: evaluate(pair, st, tt))(steps, t)
+
+
+_evaluate_many_compiled = jax.jit(_evaluate_many, static_argnums=0)
+
+
+class DenseOutput:
+    """``sol(t) -> (q, p, lam)`` between the step points of a :func:`~lobattodae.solve` run
+    (``dense_output=True``), from the stored steps' polynomials (q), (p), (λ).
+
+    ``t`` is a scalar (1-D results) or a 1-D array (time-major results); it must lie in the
+    integrated interval.
+    """
+
+    def __init__(self, pair: LobattoPair, packed: np.ndarray, n: int, m: int, t0: float):
+        from ._loop import unpack_dense
+
+        self.pair = pair
+        self.steps = unpack_dense(np.asarray(packed), pair.s, n, m)
+        self.n_steps = len(self.steps.t0)
+        self.t0 = float(t0)
+        self.t1 = float(self.steps.t0[-1] + self.steps.h[-1]) if self.n_steps else self.t0
+        self._starts = np.asarray(self.steps.t0)
+
+    def __call__(self, t):
+        t_arr = np.asarray(t, dtype=np.float64)
+        scalar = t_arr.ndim == 0
+        t_arr = np.atleast_1d(t_arr)
+        if t_arr.ndim != 1:
+            raise ValueError(f"t must be a scalar or a 1-D array; got shape {t_arr.shape}.")
+        if not self.n_steps:
+            raise ValueError("no step was taken; there is no dense output to evaluate.")
+        lo, hi = min(self.t0, self.t1), max(self.t0, self.t1)
+        if np.any(~np.isfinite(t_arr)) or np.any(t_arr < lo) or np.any(t_arr > hi):
+            raise ValueError(f"t must lie in the integrated interval [{lo:g}, {hi:g}].")
+        forward = self.t1 >= self.t0
+        keys = self._starts if forward else -self._starts
+        idx = np.clip(np.searchsorted(keys, t_arr if forward else -t_arr, side="right") - 1, 0, self.n_steps - 1)
+        steps = DenseStep(*(jnp.asarray(np.asarray(x)[idx]) for x in self.steps))
+        q, p, lam = (np.asarray(x) for x in _evaluate_many_compiled(self.pair, steps, jnp.asarray(t_arr)))
+        if scalar:
+            return q[0], p[0], lam[0]
+        return q, p, lam

@@ -1,0 +1,138 @@
+r"""Events: zeros of user functions ``e(t, q, p, args)`` along the solution, located in the
+compiled loop.
+
+After every accepted step the event functions are evaluated at the new step point. A sign
+change (filtered by ``direction``) between the two step points is located on the step's
+dense output (:mod:`lobattodae._dense`) by the Illinois variant of regula falsi, safeguarded
+by bisection, to ``|Δθ| ≤ THETA_TOL`` in the step's scaled time θ (an error in t far below
+1e-12 relative). A *terminal* event does not take the dense value: the loop rejects the
+step and re-takes it to end exactly at the located time, so that the final state is a
+step point of the method (``φ = 0`` to round-off) and the run ends there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ._dense import DenseStep, evaluate
+from ._errors import LobattoDAEInputError
+from ._tableau import LobattoPair
+
+__all__ = ["Event", "EventState", "as_events", "crossings", "event_values", "locate"]
+
+#: Root-finding tolerance in the step's scaled time θ ∈ [0, 1].
+THETA_TOL = 4 * 2.220446049250313e-16
+#: Iteration cap of the root finder (bisection alone would reach THETA_TOL in 51).
+MAX_ROOT_ITERATIONS = 80
+
+
+@dataclass(frozen=True, eq=False)
+class Event:
+    """An event function ``fn(t, q, p, args) -> scalar`` and what its zeros do.
+
+    ``terminal``: 0 (record only), or stop the run at the k-th zero (``True`` means 1).
+    ``direction``: record zeros where ``fn`` increases (> 0), decreases (< 0) or both (0),
+    in the direction of integration.
+    """
+
+    fn: Callable[..., Any]
+    terminal: int = 0
+    direction: float = 0.0
+
+    @property
+    def name(self) -> str:
+        return getattr(self.fn, "__name__", repr(self.fn))
+
+
+def as_events(events) -> tuple[Event, ...]:
+    """Normalise ``events`` (None, a callable or a list of them, scipy style: the attributes
+    ``terminal`` and ``direction`` are read from each function) into :class:`Event` records."""
+    if events is None:
+        return ()
+    if callable(events) and not isinstance(events, (list, tuple)):
+        events = [events]
+    if not isinstance(events, (list, tuple)):
+        raise LobattoDAEInputError(f"events must be a callable or a list of callables; got {type(events).__name__}.")
+    out = []
+    for i, ev in enumerate(events):
+        if isinstance(ev, Event):
+            out.append(ev)
+            continue
+        if not callable(ev):
+            raise LobattoDAEInputError(f"events[{i}] must be a callable e(t, q, p, args) -> float; got {ev!r}.")
+        terminal = getattr(ev, "terminal", False)
+        if isinstance(terminal, bool):
+            terminal = int(terminal)
+        if not isinstance(terminal, int) or terminal < 0:
+            raise LobattoDAEInputError(
+                f"events[{i}].terminal must be True/False or a non-negative int (stop at that occurrence); got {terminal!r}."
+            )
+        direction = getattr(ev, "direction", 0.0)
+        try:
+            direction = float(direction)
+        except (TypeError, ValueError):
+            raise LobattoDAEInputError(f"events[{i}].direction must be a number (-1, 0 or 1); got {direction!r}.") from None
+        out.append(Event(ev, terminal, direction))
+    return tuple(out)
+
+
+class EventState(NamedTuple):
+    """The event functions at the current step point, how often each has fired, and the
+    terminal event the loop is stepping to (-1: none)."""
+
+    values: jax.Array  # (E,)
+    counts: jax.Array  # (E,) int32
+    stopping: jax.Array  # int32
+
+
+def event_values(events: tuple[Event, ...], t, q, p, args, dtype):
+    if not events:
+        return jnp.zeros((0,), dtype)
+    return jnp.stack([jnp.asarray(ev.fn(t, q, p, args), dtype).reshape(()) for ev in events])
+
+
+def crossings(events: tuple[Event, ...], v0, v1):
+    """(E,) bool: a zero between two step points, in each event's direction."""
+    if not events:
+        return jnp.zeros((0,), bool)
+    direction = jnp.asarray([ev.direction for ev in events], v0.dtype)
+    up = (v0 < 0) & (v1 >= 0)
+    down = (v0 > 0) & (v1 <= 0)
+    return jnp.where(direction > 0, up, jnp.where(direction < 0, down, up | down))
+
+
+def locate(pair: LobattoPair, event: Event, step: DenseStep, args, v0, v1):
+    """The time of the zero of ``event`` in the step, between values ``v0`` (θ = 0) and ``v1``
+    (θ = 1) of opposite signs, on the dense output."""
+
+    def value(theta):
+        t = step.t0 + theta * step.h
+        q, p, _ = evaluate(pair, step, t)
+        return jnp.asarray(event.fn(t, q, p, args), v0.dtype).reshape(())
+
+    def cond(c):
+        a, b, fa, fb, _, k = c
+        return (b - a > THETA_TOL) & (fa != 0) & (fb != 0) & (k < MAX_ROOT_ITERATIONS)
+
+    def body(c):
+        a, b, fa, fb, side, k = c
+        secant = (a * fb - b * fa) / (fb - fa)
+        bisect = (k % 4 == 3) | ~((secant > a) & (secant < b))  # safeguard against stalling
+        x = jnp.where(bisect, 0.5 * (a + b), secant)
+        fx = value(x)
+        left = jnp.sign(fx) == jnp.sign(fa)  # the root is in [x, b]
+        # Illinois: halve the value kept at the end that stays twice in a row
+        fb_new = jnp.where(left & (side == 1), 0.5 * fb, fb)
+        fa_new = jnp.where(~left & (side == -1), 0.5 * fa, fa)
+        a, fa = jnp.where(left, x, a), jnp.where(left, fx, fa_new)
+        b, fb = jnp.where(left, b, x), jnp.where(left, fb_new, fx)
+        return a, b, fa, fb, jnp.where(left, 1, -1), k + 1
+
+    zero, one = jnp.asarray(0.0, v0.dtype), jnp.asarray(1.0, v0.dtype)
+    a, b, fa, fb, _, _ = jax.lax.while_loop(cond, body, (zero, one, v0, v1, jnp.asarray(0), jnp.asarray(0)))
+    theta = jnp.where(fa == 0, a, jnp.where(fb == 0, b, jnp.where(jnp.abs(fa) <= jnp.abs(fb), a, b)))
+    return step.t0 + theta * step.h
