@@ -152,7 +152,7 @@ def test_file_schema_is_explicit(tmp_path):
     with np.load(path, allow_pickle=False) as data:
         keys = set(data.files)
         assert str(data["__format__"]) == C.FORMAT == "lobattodae-checkpoint"
-        assert int(data["__version__"]) == C.VERSION == 2
+        assert int(data["__version__"]) == C.VERSION == 3
         assert json.loads(str(data["meta"])) == META
         assert json.loads(str(data["counters"])) == COUNTERS
     assert keys == {
@@ -229,7 +229,7 @@ def test_meta_with_nan_matches_itself(tmp_path):
     read(path, meta=meta)
 
 
-@pytest.mark.parametrize("version, age", [(1, "an older"), (3, "a newer")])
+@pytest.mark.parametrize("version, age", [(2, "an older"), (4, "a newer")])
 def test_version_mismatch(tmp_path, monkeypatch, version, age):
     path = tmp_path / "run.npz"
     with monkeypatch.context() as m:
@@ -239,7 +239,7 @@ def test_version_mismatch(tmp_path, monkeypatch, version, age):
         read(path)
     msg = str(info.value)
     assert msg.startswith(f"checkpoint '{path}' has checkpoint format version {version} (written by {age} "), msg
-    assert "this lobattodae reads and writes version 2" in msg
+    assert "this lobattodae reads and writes version 3" in msg
     assert "delete it or restart without resume" in msg
 
 
@@ -248,7 +248,7 @@ def test_legacy_leaf_layout_is_reported_as_version_1(tmp_path):
     legacy_meta = {"format": "lobattodae-checkpoint-1", "method": "x", "t0": 0.0}
     with open(path, "wb") as fh:
         np.savez(fh, meta=json.dumps(legacy_meta), done=3, recoveries=0, leaf_0=np.zeros(3), out_q=np.zeros((3, 2)))
-    with pytest.raises(C.CheckpointError, match="has checkpoint format version 1 .* reads and writes version 2"):
+    with pytest.raises(C.CheckpointError, match="has checkpoint format version 1 .* reads and writes version 3"):
         read(path)
 
 
@@ -384,8 +384,8 @@ def test_missing_and_unexpected_entries(tmp_path):
 
 def test_bad_header_entries(tmp_path):
     path = tmp_path / "run.npz"
-    base = {"__format__": C.FORMAT, "__version__": 2, "meta": json.dumps(META), "counters": "{}"}
-    for key, value in [("__version__", 2.0), ("meta", "{not json"), ("meta", "[1, 2]"),
+    base = {"__format__": C.FORMAT, "__version__": C.VERSION, "meta": json.dumps(META), "counters": "{}"}
+    for key, value in [("__version__", float(C.VERSION)), ("meta", "{not json"), ("meta", "[1, 2]"),
                        ("counters", json.dumps({"done": "x"})), ("__format__", np.arange(3))]:
         np.savez(path, **dict(base, **{key: value}))
         expect_corrupt(path)

@@ -248,7 +248,7 @@ class PIController:
         shrink = jnp.where(usable, jnp.clip(self.safety * safe_err ** (-1.0 / k), self.fac_min, 0.9), 0.25)
         h_new = report.h * jnp.where(accept, grow, shrink)
         h_new = jnp.sign(h_new) * jnp.minimum(jnp.abs(h_new), st.max_step)
-        reaches_end = report.t + report.h == st.t_end
+        reaches_end = report.h == st.t_end - report.t  # bitwise: the proposal clipped it so
         t = jnp.where(accept, jnp.where(reaches_end, st.t_end, report.t + report.h), st.t)
         new = st._replace(
             t=t, h=h_new,
@@ -348,7 +348,7 @@ class ReversibleStepSize:
         return st.t, _end_clipped(st.t, st.direction * st.epsilon / st.rho, st.t_end)
 
     def adapt(self, st: ReversibleState, problem, args, report: StepReport):
-        t1 = jnp.where(report.t + report.h == st.t_end, st.t_end, report.t + report.h)
+        t1 = jnp.where(report.h == st.t_end - report.t, st.t_end, report.t + report.h)
         _, rate = self._rho_and_g(problem, t1, report.q1, report.p1, report.lam1, args)
         rho = st.rho + st.epsilon * rate
         # ρ must stay positive: a density that changes by more than a factor 4 within one step

@@ -31,7 +31,7 @@ from ._controllers import ConstantStepSize, ControlOptions, PIController, StepRe
 from ._dense import DenseStep, empty_dense_step, evaluate
 from ._events import Event, EventState, crossings, event_values, locate
 from ._results import Result
-from ._stepper import LobattoIIIAIIIB, StepperState
+from ._stepper import LobattoIIIAIIIB, StepperState, for_error_control
 
 __all__ = [
     "CHUNK",
@@ -494,6 +494,8 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
         with ``t_eval`` (an array, sorted in the direction of integration) one row per time.
     """
     _check_count("max_steps", max_steps)
+    if isinstance(controller, PIController):
+        method = for_error_control(method)
     cast = functools.partial(jnp.asarray, dtype=jnp.float64)
     t0, t1 = (cast(x) for x in t_span)
     options = ControlOptions(1, rtol, atol, first_step, max_step)

@@ -29,8 +29,8 @@ from ._dense import DenseOutput
 from ._events import as_events
 from ._loop import CHUNK, Output, Record, State, init_compiled, run_compiled
 from ._results import Result
-from ._stepper import LobattoIIIAIIIB
-from ._validate import check_float64, validate_and_residual
+from ._stepper import LobattoIIIAIIIB, for_error_control
+from ._validate import check_float64, check_tolerance_attainable, validate_and_residual
 
 __all__ = ["Solution", "solve", "STATS"]
 
@@ -146,6 +146,7 @@ class _Options:
             raise TypeError(
                 f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3); got {method!r}."
             )
+        check_tolerance_attainable(method)
         t0, t1 = _check_t_span(t_span)
         constant = n_steps is not None or dt is not None
         if constant:
@@ -476,6 +477,8 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
     """Validation, the loop state, the compiled chunks (progress, checkpoints, recovery), the
     Solution; ``interrupted()`` says whether Ctrl-C asked to stop."""
     q0, p0, lam0, phi0 = validate_and_residual(problem, opt.t0, q0, p0, lam0, args, project=project_initial)
+    if isinstance(opt.controller, PIController):
+        method = for_error_control(method)
     _check_events(opt.output.events, opt.t0, q0, p0, args)
     report = _progress_reporter(progress, opt)
     f64 = jnp.float64

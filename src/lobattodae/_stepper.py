@@ -7,6 +7,7 @@ reused Jacobian, the start multiplier Λ₁) and what it hands to the next step.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -239,7 +240,11 @@ class LobattoIIIAIIIB:
         It estimates the local error of the embedded order-(s-1) formula, not the step's own
         ``O(h^(2s-1))``; the adaptive controller (:class:`~lobattodae.PIController`) maps the
         user's tolerance accordingly so that the global error is proportional to it. It costs
-        no function evaluations.
+        no function evaluations. The start multiplier must be consistent for it to mean
+        anything: the scheme's undamped λ error (``Λ_1 = λ_n``) answers in the stage
+        multipliers with a pattern that is not smooth in the stage index and enters ``e·W`` at
+        ``O(h)``, whatever the solution does; error-controlled runs therefore start every step
+        from ``λ(t_n, q_n, p_n)`` (see :func:`for_error_control`).
         state : StepperState
             To be passed to the next step (Jacobian reuse, predictor, λ bookkeeping).
         """
@@ -277,13 +282,17 @@ class LobattoIIIAIIIB:
             resync=jnp.logical_and(excursion, self.lam_start == "auto"),
             monitor=monitor,
         )
-        e = pair.error_weights[None]
-        error = h * jnp.concatenate([se.tableau_product(e, stages.V)[0], se.tableau_product(e, stages.W)[0]])
+        error = self._error_estimate(params, stages)
         dense = DenseStep(t0, h, q0, p0, stages.V, stages.W, stages.Lam)
         info = StepInfo(
             ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians, drift, state.resync, error, dense
         )
         return q1, p1, lam1, info, new_state
+
+    def _error_estimate(self, params: se.StageParams, stages: se.Stages):
+        """``h Σ_j e_j (V_j, W_j)`` (see :meth:`step`)."""
+        e = self.pair.error_weights[None]
+        return params.h * jnp.concatenate([se.tableau_product(e, stages.V)[0], se.tableau_product(e, stages.W)[0]])
 
     # -- what a step starts from and hands on ------------------------------------------------
     def _guess(self, layout, params, history: History):
@@ -335,6 +344,15 @@ class LobattoIIIAIIIB:
             length=jnp.where(ends, 2 * monitor.length, monitor.length),
             excursions=monitor.excursions + excursion.astype(jnp.int32),
         ), excursion
+
+
+def for_error_control(method: LobattoIIIAIIIB) -> LobattoIIIAIIIB:
+    """The method as error-controlled steps run it: ``lam_start="auto"`` becomes
+    ``"consistent"`` (see :meth:`LobattoIIIAIIIB.step`, the error estimate); an explicit
+    ``"previous"`` is kept (the estimate then also measures the carried λ error)."""
+    if method.lam_start == "auto":
+        return dataclasses.replace(method, lam_start="consistent")
+    return method
 
 
 def _fresh_monitor(dtype, excursions) -> LamMonitor:

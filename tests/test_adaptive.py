@@ -1,0 +1,186 @@
+"""Variable steps (issue #10): error control, dense output, events, output selection, resume."""
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+import lobattodae as L
+from lobattodae.examples import get_example
+
+
+@pytest.fixture(scope="module")
+def sleigh():
+    return get_example("sleigh")
+
+
+@pytest.fixture(scope="module")
+def method():
+    return L.LobattoIIIAIIIB(stages=3)
+
+
+def _solve(ex, method, **kw):
+    kw.setdefault("t_span", ex.t_span)
+    t_span = kw.pop("t_span")
+    return L.solve(ex.problem, method, t_span, ex.q0, ex.p0, args=ex.args, **kw)
+
+
+def test_global_error_is_proportional_to_rtol(sleigh, method):
+    """Tolerance proportionality: log-log slope of the final error against rtol near 1."""
+    rtols = np.array([1e-5, 1e-7, 1e-9, 1e-11])
+    errors = []
+    for rtol in rtols:
+        sol = _solve(sleigh, method, rtol=rtol, atol=rtol)
+        q, p, _ = sleigh.exact(sol.t[-1])
+        errors.append(max(np.max(np.abs(sol.q[-1] - q)), np.max(np.abs(sol.p[-1] - p))))
+        assert sol.success and sol.t[-1] == sleigh.t_span[1]
+        assert sol.stats["max_constraint_residual"] < 1e-13
+    slope = np.polyfit(np.log10(rtols), np.log10(errors), 1)[0]
+    assert 0.75 < slope < 1.25, (errors, slope)
+    assert np.all(np.asarray(errors) < 10 * rtols), errors
+
+
+def test_adaptive_steps_need_fewer_steps_than_constant_ones_for_the_same_error(sleigh, method):
+    adaptive = _solve(sleigh, method, rtol=1e-9, atol=1e-9)
+    q, _, _ = sleigh.exact(adaptive.t[-1])
+    err = np.max(np.abs(adaptive.q[-1] - q))
+    constant = _solve(sleigh, method, n_steps=adaptive.stats["n_steps"])
+    err_c = np.max(np.abs(constant.q[-1] - q))
+    assert err <= 2 * err_c  # distributing the same number of steps by error control is no worse
+
+
+def test_backwards_integration_returns_to_the_start(sleigh, method):
+    fwd = _solve(sleigh, method, rtol=1e-10, atol=1e-10)
+    back = L.solve(sleigh.problem, method, (fwd.t[-1], 0.0), fwd.q[-1], fwd.p[-1], args=sleigh.args, rtol=1e-10,
+                   atol=1e-10)
+    assert back.t[-1] == 0.0 and np.all(np.diff(back.t) < 0)
+    np.testing.assert_allclose(back.q[-1], sleigh.q0, atol=1e-8)
+
+
+def test_t_eval_rows_come_from_the_dense_output(sleigh, method):
+    te = np.linspace(0.0, 2.0, 41)
+    sol = _solve(sleigh, method, rtol=1e-10, atol=1e-10, t_eval=te)
+    np.testing.assert_array_equal(sol.t, te)
+    q, p, lam = sleigh.exact(te)
+    assert np.max(np.abs(sol.q - q)) < 1e-8 and np.max(np.abs(sol.p - p)) < 1e-8
+    # the constraint between step points: small, but not at round-off (interpolation error)
+    assert np.max(sol.stats["constraint_residual"]) < 1e-7
+    # the last row is the final step point itself
+    end = _solve(sleigh, method, rtol=1e-10, atol=1e-10)
+    np.testing.assert_array_equal(sol.q[-1], end.q[-1])
+
+
+def test_save_every_and_final_keep_a_subset_of_the_same_steps(sleigh, method):
+    full = _solve(sleigh, method, rtol=1e-8, atol=1e-8)
+    every = _solve(sleigh, method, rtol=1e-8, atol=1e-8, save_every=5)
+    final = _solve(sleigh, method, rtol=1e-8, atol=1e-8, save_every="final")
+    n = full.stats["n_steps"]
+    keep = [k for k in range(5, n + 1, 5)] + ([n] if n % 5 else [])
+    np.testing.assert_array_equal(every.t[1:], full.t[keep])
+    np.testing.assert_array_equal(every.q[1:], full.q[keep])
+    assert len(final.t) == 2 and np.array_equal(final.q[-1], full.q[-1])
+    assert final.stats["n_steps"] == n
+
+
+def test_dense_output_order_between_step_points(sleigh):
+    """sol.sol(t) between step points converges like h^(s+1) for q (collocation polynomial)."""
+    errs, hs = [], []
+    m = L.LobattoIIIAIIIB(stages=3)
+    for n in (40, 80, 160):
+        sol = _solve(sleigh, m, n_steps=n, dense_output=True)
+        mid = 0.5 * (sol.t[:-1] + sol.t[1:])
+        q, _, _ = sol.sol(mid)
+        qe, _, _ = sleigh.exact(mid)
+        errs.append(np.max(np.abs(q - qe)))
+        hs.append(2.0 / n)
+    order = np.polyfit(np.log(hs), np.log(errs), 1)[0]
+    assert order > 3.6, (errs, order)
+    with pytest.raises(ValueError, match="integrated interval"):
+        sol.sol(3.0)
+
+
+def test_terminal_event_on_the_sleigh_heading_matches_the_closed_form(sleigh, method):
+    target = 0.5
+
+    def heading(t, q, p, args):
+        return q[2] - target
+
+    heading.terminal = True
+    sol = _solve(sleigh, method, rtol=1e-10, atol=1e-10, events=heading)
+    assert sol.status == L.Result.EVENT and sol.success
+    t_exact = brentq(lambda t: sleigh.exact(t)[0][2] - target, 0.01, 2.0, xtol=1e-15)
+    assert abs(sol.t_events[0][0] - t_exact) < 1e-9
+    assert sol.t[-1] == sol.t_events[0][0]
+    # the final state is a step point of the method: the constraint at round-off
+    assert sol.stats["constraint_residual"][-1] < 1e-14
+    assert abs(sol.q[-1, 2] - target) < 1e-9
+
+
+def test_non_terminal_events_with_direction(sleigh, method):
+    def x_rising(t, q, p, args):
+        return p[1] - 1.1
+
+    x_rising.direction = 1.0
+
+    def x_falling(t, q, p, args):
+        return p[1] - 1.1
+
+    x_falling.direction = -1.0
+    sol = _solve(sleigh, method, rtol=1e-10, atol=1e-10, events=[x_rising, x_falling], dense_output=True)
+    assert sol.status == L.Result.SUCCESSFUL
+    te = np.linspace(0, 2, 20001)
+    pe = sleigh.exact(te)[1][:, 1] - 1.1
+    ups = te[1:][(pe[:-1] < 0) & (pe[1:] >= 0)]
+    downs = te[1:][(pe[:-1] > 0) & (pe[1:] <= 0)]
+    assert len(sol.t_events[0]) == len(ups) and len(sol.t_events[1]) == len(downs)
+    np.testing.assert_allclose(sol.t_events[0], ups, atol=2e-4)
+    for t_ev, p_ev in zip(sol.t_events[0], sol.p_events[0]):
+        assert abs(p_ev[1] - 1.1) < 1e-8
+
+
+def test_adaptive_resume_is_bitwise_identical(sleigh, method, tmp_path):
+    ref = _solve(sleigh, method, rtol=1e-9, atol=1e-9, chunk_size=16, t_span=(0.0, 20.0))
+
+    class Stop:
+        def __init__(self):
+            self.calls = 0
+
+        def __call__(self, done, total):
+            self.calls += 1
+            if self.calls == 3:
+                import os
+                import signal
+
+                os.kill(os.getpid(), signal.SIGINT)
+
+    path = tmp_path / "run.npz"
+    part = _solve(sleigh, method, rtol=1e-9, atol=1e-9, chunk_size=16, t_span=(0.0, 20.0), checkpoint=path,
+                  progress=Stop())
+    assert part.status == L.Result.INTERRUPTED and len(part.t) < len(ref.t)
+    full = _solve(sleigh, method, rtol=1e-9, atol=1e-9, chunk_size=16, t_span=(0.0, 20.0), checkpoint=path,
+                  resume=True)
+    np.testing.assert_array_equal(full.t, ref.t)
+    np.testing.assert_array_equal(full.q, ref.q)
+    np.testing.assert_array_equal(full.lam, ref.lam)
+
+
+def test_integrate_adaptive_is_vmappable_and_reports_max_steps(sleigh, method):
+    import jax
+    import jax.numpy as jnp
+
+    def steps(rtol):
+        r = L.integrate_adaptive(sleigh.problem, method, sleigh.t_span, sleigh.q0, sleigh.p0, sleigh.lam0, sleigh.args,
+                                 rtol=rtol, atol=rtol, max_steps=512)
+        return r.n_steps, r.status
+
+    n, status = jax.vmap(steps)(jnp.asarray([1e-6, 1e-9]))
+    assert int(n[0]) < int(n[1]) and np.all(np.asarray(status) == 0)
+    r = L.integrate_adaptive(sleigh.problem, method, sleigh.t_span, sleigh.q0, sleigh.p0, sleigh.lam0, sleigh.args,
+                             rtol=1e-12, atol=1e-12, max_steps=8)
+    assert int(r.status) == L.Result.MAX_STEPS and int(r.n_rows) == 9
+
+
+def test_events_must_return_one_finite_number(sleigh, method):
+    with pytest.raises(L.LobattoDAEInputError, match="must return one number"):
+        _solve(sleigh, method, events=lambda t, q, p, args: q)
+    with pytest.raises(L.LobattoDAEInputError, match="not finite"):
+        _solve(sleigh, method, events=lambda t, q, p, args: q[0] / 0.0 * 0.0)
