@@ -12,7 +12,7 @@ from ._errors import LobattoDAEInputError
 from ._solve import solve
 from ._stepper import LobattoIIIAIIIB
 
-__all__ = ["ConvergenceStudy", "convergence_study", "observed_order", "default_step_counts"]
+__all__ = ["ConvergenceStudy", "convergence_study", "observed_order", "order_text", "default_step_counts"]
 
 COMPONENTS = ("q", "p", "lam")
 #: Errors below PLATEAU_REL[c] * (1 + max |c|) are treated as round-off and not fitted. The
@@ -37,6 +37,20 @@ def observed_order(h: Sequence[float], err: Sequence[float], floor: float = 0.0,
     keep = keep[np.argsort(h[keep])][:n_fit]
     slope, _ = np.polyfit(np.log(h[keep]), np.log(err[keep]), 1)
     return float(slope)
+
+
+def order_text(observed: float, errors: Sequence[float], floor: float) -> str:
+    """An observed order as the table shows it: the fitted value; ``"exact"`` only where the
+    order is NaN because every error is at the round-off floor (the component is exact); and
+    ``"n/a"`` where it is NaN for want of points (fewer than two step counts with errors
+    above the floor, or failed runs, whose NaN errors are no evidence of exactness)."""
+    if np.isfinite(observed):
+        return f"{observed:.2f}"
+    errors = np.asarray(errors, float).ravel()
+    errors = errors[np.isfinite(errors)]
+    if errors.size and np.all(errors <= floor):
+        return "exact"
+    return "n/a"
 
 
 def default_step_counts(stages: int, t_span_length: float = 2.0) -> tuple[int, ...]:
@@ -68,7 +82,8 @@ class ConvergenceStudy:
     errors : dict s -> dict component -> array of global errors (max over the grid of the
         max-norm error against the exact solution; at the final time against a reference)
     floors : dict component -> round-off floor used in the fits
-    observed : dict s -> dict component -> fitted order (NaN: exact / at round-off)
+    observed : dict s -> dict component -> fitted order (NaN: none could be fitted; the table
+        says "exact" only where every error is at the round-off floor, see :func:`order_text`)
     expected : dict s -> dict component -> order predicted by the paper's Corollary, or the
         example's recorded superconvergent order (None: exact to round-off)
     constraint_residual : dict s -> max ‖φ‖∞ over all runs with s stages
@@ -94,18 +109,25 @@ class ConvergenceStudy:
             f"{'lam obs':>7} {'theory':>6} | {'max|phi|':>9}",
             "-" * 74,
         ]
+        used: set[str] = set()
         for s in self.stages:
-            o, e = self.observed[s], self.expected[s]
-
-            def fmt(x):
-                return "exact" if not np.isfinite(x) else f"{x:.2f}"
-
-            e = {c: ("exact" if e[c] is None else e[c]) for c in COMPONENTS}
-
+            o = {
+                c: order_text(self.observed[s][c], self.errors[s][c], self.floors.get(c, 0.0))
+                for c in COMPONENTS
+            }
+            e = {c: ("exact" if self.expected[s][c] is None else self.expected[s][c]) for c in COMPONENTS}
+            used.update(o.values())
             lines.append(
-                f"{s:>3} | {fmt(o['q']):>6} {e['q']:>6} | {fmt(o['p']):>6} {e['p']:>6} | "
-                f"{fmt(o['lam']):>7} {e['lam']:>6} | {self.constraint_residual[s]:9.1e}"
+                f"{s:>3} | {o['q']:>6} {e['q']:>6} | {o['p']:>6} {e['p']:>6} | "
+                f"{o['lam']:>7} {e['lam']:>6} | {self.constraint_residual[s]:9.1e}"
             )
+        if "n/a" in used:
+            lines.append(
+                "n/a: no order can be fitted (fewer than two step counts with errors above round-off, "
+                "or failed runs); give more step counts (n_steps)"
+            )
+        if "exact" in used:
+            lines.append("exact: every error is at the round-off floor")
         if self.notes:
             lines.append(f"note: {self.notes}")
         return "\n".join(lines)

@@ -13,6 +13,7 @@ __all__ = [
     "ShapeError",
     "InconsistentInitialValuesError",
     "ProblemFunctionError",
+    "ProblemDefinitionError",
     "SingularConstraintError",
     "SolverError",
     "NewtonFailure",
@@ -30,6 +31,12 @@ class ShapeError(LobattoDAEInputError):
 class ProblemFunctionError(LobattoDAEInputError):
     """A function of the problem (f, g, φ, H, μ, M, V) raised an exception when called; the
     original exception is chained as ``__cause__``."""
+
+
+class ProblemDefinitionError(LobattoDAEInputError, TypeError):
+    """A problem object was constructed with a function missing or not callable (e.g.
+    ``NonholonomicSystem(H)`` without the constraint matrix). Also a :class:`TypeError`, which
+    is what Python raises for a missing constructor argument."""
 
 
 class InconsistentInitialValuesError(LobattoDAEInputError):

@@ -13,6 +13,7 @@ from typing import Any, Callable
 import jax
 import jax.numpy as jnp
 
+from ._errors import ProblemDefinitionError
 from ._linalg import small_solve, spd_solve
 
 __all__ = [
@@ -23,6 +24,35 @@ __all__ = [
     "consistent_lambda",
     "vector_field",
 ]
+
+
+def _check_functions(problem, fields: tuple[tuple[str, str], ...]) -> None:
+    """Refuse a problem whose functions are missing or not callable, naming the field.
+
+    ``fields`` pairs each field with the call signature it must have (for the message). Run by
+    ``__post_init__``, so a bad problem fails where it is built, not at the first solve.
+    """
+    cls = type(problem).__name__
+    call = ", ".join(f"{name}=..." for name, _ in fields)
+    for name, signature in fields:
+        fn = getattr(problem, name)
+        if fn is None:
+            raise ProblemDefinitionError(
+                f"{cls} needs {name}, a function {signature}; it is missing. "
+                f"Construct it as {cls}({call})."
+            )
+        if not callable(fn):
+            text = repr(fn)
+            text = text if len(text) <= 60 else text[:57] + "..."
+            raise ProblemDefinitionError(
+                f"{cls}: {name} must be a function {signature}; got {type(fn).__name__} {text}. "
+                "Pass the function itself (not its value at some point)."
+            )
+    if not isinstance(problem.name, str):
+        raise ProblemDefinitionError(
+            f"{cls}: name must be a string; got {type(problem.name).__name__} {problem.name!r} "
+            f"(the functions are {call.replace('=...', '')}; pass them by keyword)."
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,10 +77,20 @@ class PartitionedDAE:
         Used in messages and plots.
     """
 
-    f: Callable[..., Any]
-    g: Callable[..., Any]
-    phi: Callable[..., Any]
+    f: Callable[..., Any] | None = None
+    g: Callable[..., Any] | None = None
+    phi: Callable[..., Any] | None = None
     name: str = "PartitionedDAE"
+
+    def __post_init__(self):
+        _check_functions(
+            self,
+            (
+                ("f", "f(t, q, p, args) -> (n,)"),
+                ("g", "g(t, q, p, lam, args) -> (n,)"),
+                ("phi", "phi(t, q, p, args) -> (m,)"),
+            ),
+        )
 
 
 class _HamiltonianMixin:
@@ -107,9 +147,20 @@ class NonholonomicSystem(_HamiltonianMixin):
     name : str, optional
     """
 
-    hamiltonian: Callable[..., Any]
-    constraint_matrix: Callable[..., Any]
+    # None marks a missing argument (refused by __post_init__ with a clear message); without a
+    # default the mixin's placeholder methods would be taken as defaults by the dataclass.
+    hamiltonian: Callable[..., Any] | None = None
+    constraint_matrix: Callable[..., Any] | None = None
     name: str = "NonholonomicSystem"
+
+    def __post_init__(self):
+        _check_functions(
+            self,
+            (
+                ("hamiltonian", "H(t, q, p, args) -> scalar"),
+                ("constraint_matrix", "mu(t, q, args) -> (m, n)"),
+            ),
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,10 +183,20 @@ class MechanicalSystem(_HamiltonianMixin):
     name : str, optional
     """
 
-    mass_matrix: Callable[..., Any]
-    potential: Callable[..., Any]
-    constraint_matrix: Callable[..., Any]
+    mass_matrix: Callable[..., Any] | None = None
+    potential: Callable[..., Any] | None = None
+    constraint_matrix: Callable[..., Any] | None = None
     name: str = "MechanicalSystem"
+
+    def __post_init__(self):
+        _check_functions(
+            self,
+            (
+                ("mass_matrix", "M(t, q, args) -> (n, n)"),
+                ("potential", "V(t, q, args) -> scalar"),
+                ("constraint_matrix", "mu(t, q, args) -> (m, n)"),
+            ),
+        )
 
     def hamiltonian(self, t, q, p, args):
         v = spd_solve(self.mass_matrix(t, q, args), p)

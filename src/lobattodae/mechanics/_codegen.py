@@ -1,0 +1,342 @@
+"""JAX code generation from SymPy expressions, with common-subexpression elimination.
+
+A generated function reads scalars out of its vector arguments (``q_0 = q[0]``) and its
+parameters out of the ``args`` dict (``k_0 = args['m']``), evaluates the expressions of
+all its outputs once, sharing common subexpressions (:func:`sympy.cse`), and stacks the
+results into float64 arrays. A function may solve a linear system on the way: the
+velocities ``v = M(t, q)⁻¹ (p − a(t, q))`` are computed numerically, never symbolically,
+block by block along the structural sparsity of ``M`` (a division for 1×1 blocks, the closed
+form for 2×2 blocks, :func:`lobattodae._linalg.spd_solve` for larger ones). The
+subexpressions that do not depend on ``v`` are evaluated before the solve, the others after.
+
+Every function of a model is written into one module source, which is kept (``source``) and
+registered with :mod:`linecache`, so tracebacks show the generated lines.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import linecache
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import sympy as sp
+from sympy.printing.numpy import JaxPrinter
+from sympy.printing.precedence import PRECEDENCE
+
+from .._linalg import spd_solve
+
+__all__ = ["FunctionSpec", "SolveSpec", "generate_module"]
+
+_counter = itertools.count()
+
+
+class _Printer(JaxPrinter):
+    """The JAX printer with exact float literals and cheap integer powers.
+
+    ``x**-1`` becomes ``1/x`` (SymPy's printer writes ``x**(-1.0)``, a general ``pow``),
+    ``x**(1/2)`` ``jax.numpy.sqrt(x)``; floats are written with ``repr`` (round trip exact).
+    """
+
+    def _print_Float(self, expr):
+        return repr(float(expr))
+
+    def _print_Rational(self, expr):
+        return repr(int(expr.p) / int(expr.q))
+
+    def _print_Integer(self, expr):
+        return str(int(expr))
+
+    def _print_Pow(self, expr, rational=False):
+        base, exp = expr.as_base_exp()
+        b = self.parenthesize(base, PRECEDENCE["Pow"])
+        if exp.is_Integer:
+            k = int(exp)
+            if k == 1:
+                return b
+            if k > 0:
+                return f"{b}**{k}"
+            if k == -1:
+                return f"1/{b}"
+            return f"1/{b}**{-k}"
+        if exp == sp.S.Half:
+            return f"jax.numpy.sqrt({self._print(base)})"
+        if exp == -sp.S.Half:
+            return f"1/jax.numpy.sqrt({self._print(base)})"
+        if exp.is_Rational:
+            return f"{b}**{float(exp)!r}"
+        return f"{b}**{self.parenthesize(exp, PRECEDENCE['Pow'])}"
+
+
+_PRINTER = _Printer({"fully_qualified_modules": True, "inline": True, "allow_unknown_functions": False})
+
+
+def _code(expr) -> str:
+    return _PRINTER.doprint(expr)
+
+
+@dataclass(frozen=True)
+class SolveSpec:
+    """``v = M⁻¹ rhs`` inside a generated function.
+
+    ``matrix`` is the (n, n) SymPy matrix ``M`` and ``rhs`` the n right-hand sides, in the
+    symbols available before the solve; ``unknowns`` are the n symbols ``v`` the outputs use.
+    """
+
+    matrix: sp.Matrix
+    rhs: tuple
+    unknowns: tuple
+
+
+@dataclass(frozen=True)
+class FunctionSpec:
+    """One generated function ``name(t, <vector args>..., args)``.
+
+    Parameters
+    ----------
+    name : str
+        Python name of the function.
+    vectors : tuple of (str, tuple of Symbol)
+        The vector arguments after ``t``, in order, with the symbols of their entries.
+    outputs : tuple of (str, object)
+        ``("vector", exprs)``, ``("matrix", Matrix)`` or ``("scalar", expr)``; one output is
+        returned as is, several as a tuple.
+    solve : SolveSpec, optional
+    doc : str
+    """
+
+    name: str
+    vectors: tuple
+    outputs: tuple
+    solve: SolveSpec | None = None
+    doc: str = ""
+
+
+@dataclass
+class GeneratedModule:
+    """The functions of one generated module and its source."""
+
+    functions: dict
+    source: str
+    filename: str
+    cse_counts: dict = field(default_factory=dict)
+
+
+def _stack(entries):
+    """Stack scalars (traced values or Python numbers) into a float64 vector."""
+    if not entries:
+        return jnp.zeros((0,), dtype=jnp.float64)
+    return jnp.stack([jnp.asarray(e, dtype=jnp.float64) for e in entries])
+
+
+def _matrix(entries, rows, cols):
+    if rows * cols == 0:
+        return jnp.zeros((rows, cols), dtype=jnp.float64)
+    return jnp.reshape(_stack(entries), (rows, cols))
+
+
+def _scalar(x):
+    return jnp.asarray(x, dtype=jnp.float64)
+
+
+def _flatten_outputs(outputs):
+    flat = []
+    layout = []
+    for kind, value in outputs:
+        if kind == "vector":
+            entries = list(value)
+            layout.append((kind, len(entries)))
+        elif kind == "matrix":
+            mat = sp.Matrix(value)
+            entries = list(mat)  # row-major
+            layout.append((kind, mat.shape))
+        elif kind == "scalar":
+            entries = [value]
+            layout.append((kind, 1))
+        else:  # pragma: no cover - internal misuse
+            raise ValueError(f"unknown output kind {kind!r}")
+        flat.extend(sp.sympify(e) for e in entries)
+    return flat, layout
+
+
+def _entry(expr) -> str:
+    if expr.is_number:
+        return repr(float(expr))
+    return _code(expr)
+
+
+def _blocks(mat: sp.Matrix) -> list[list[int]]:
+    """The diagonal blocks of a symmetric matrix: the connected components of its structural
+    nonzeros (entries that are not identically 0), each sorted, ordered by first index."""
+    n = mat.shape[0]
+    parent = list(range(n))
+
+    def root(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i in range(n):
+        for j in range(i + 1, n):
+            if mat[i, j] != 0 or mat[j, i] != 0:
+                parent[root(i)] = root(j)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(root(i), []).append(i)
+    return sorted(groups.values(), key=lambda b: b[0])
+
+
+def _solve_lines(solve: SolveSpec, blocks, pre_red, after) -> list[str]:
+    """``v = M⁻¹ rhs`` block by block: a division for 1×1 blocks, the closed form for 2×2
+    blocks, :func:`spd_solve` (unrolled elimination) for larger ones. Blocks whose unknowns
+    are not used are skipped."""
+    n = len(solve.unknowns)
+    rhs = pre_red[len(pre_red) - n:]
+    names = [u.name for u in solve.unknowns]
+    lines = []
+    pos = 0
+    for k, block in enumerate(blocks):
+        size = len(block)
+        count = size if size == 1 else 3 if size == 2 else size * size
+        entries = [f"({_entry(e)})" for e in pre_red[pos : pos + count]]
+        pos += count
+        if not any(solve.unknowns[i] in after for i in block):
+            continue
+        r = [f"({_entry(rhs[i])})" for i in block]
+        if size == 1:
+            lines.append(f"    {names[block[0]]} = {r[0]}/{entries[0]}")
+        elif size == 2:
+            a, b, c = entries
+            i, j = block
+            lines.append(f"    det_{k} = {a}*{c} - {b}*{b}")
+            lines.append(f"    {names[i]} = ({c}*{r[0]} - {b}*{r[1]})/det_{k}")
+            lines.append(f"    {names[j]} = ({a}*{r[1]} - {b}*{r[0]})/det_{k}")
+        else:
+            lines.append(f"    mblock_{k} = _matrix([{', '.join(entries)}], {size}, {size})")
+            lines.append(f"    vblock_{k} = spd_solve(mblock_{k}, _stack([{', '.join(r)}]))")
+            for pos_in, i in enumerate(block):
+                lines.append(f"    {names[i]} = vblock_{k}[{pos_in}]")
+    return lines
+
+
+def _function_source(spec: FunctionSpec, t: sp.Symbol, params) -> tuple[str, int]:
+    """Source text of one function; ``params`` is a sequence of ``(key, Symbol)``."""
+    flat, layout = _flatten_outputs(spec.outputs)
+    solve = spec.solve
+    blocks, pre = [], []
+    if solve is not None:
+        mat = sp.Matrix(solve.matrix)
+        blocks = _blocks(mat)
+        for block in blocks:
+            if len(block) == 1:
+                pre.append(mat[block[0], block[0]])
+            elif len(block) == 2:
+                i, j = block
+                pre += [mat[i, i], mat[i, j], mat[j, j]]
+            else:
+                pre += [mat[i, j] for i in block for j in block]
+        pre += list(solve.rhs)
+    exprs = pre + flat
+    replacements, reduced = sp.cse(exprs, symbols=sp.numbered_symbols("s_"), order="none")
+    reduced = list(reduced)
+    pre_red, out_red = reduced[: len(pre)], reduced[len(pre):]
+
+    unknowns = set(solve.unknowns) if solve is not None else set()
+    late = set(unknowns)
+    early_lines, late_lines = [], []
+    for sym, expr in replacements:
+        line = f"    {sym.name} = {_code(expr)}"
+        if expr.free_symbols & late:
+            late.add(sym)
+            late_lines.append(line)
+        else:
+            early_lines.append(line)
+
+    used = set()
+    for _, expr in replacements:
+        used |= expr.free_symbols
+    for expr in reduced:
+        used |= expr.free_symbols
+
+    argnames = ["t"] + [name for name, _ in spec.vectors] + ["args"]
+    lines = [f"def {spec.name}({', '.join(argnames)}):"]
+    if spec.doc:
+        lines.append(f"    {spec.doc!r}")
+    for name, symbols in spec.vectors:
+        for i, s in enumerate(symbols):
+            if s in used:
+                lines.append(f"    {s.name} = {name}[{i}]")
+    for key, s in params:
+        if s in used:
+            lines.append(f"    {s.name} = args[{key!r}]")
+    if t in used and t.name != "t":  # pragma: no cover - the time symbol is named t
+        lines.append(f"    {t.name} = t")
+    lines += early_lines
+    after = set()
+    for line_expr in [e for s_, e in replacements if s_ in late] + out_red:
+        after |= line_expr.free_symbols
+    if solve is not None and not (after & unknowns):
+        solve = None  # the outputs do not use the velocities: no solve
+    if solve is not None:
+        lines += _solve_lines(solve, blocks, pre_red, after)
+    lines += late_lines
+    results = []
+    pos = 0
+    for kind, shape in layout:
+        if kind == "vector":
+            entries = out_red[pos : pos + shape]
+            pos += shape
+            results.append(f"_stack([{', '.join(_entry(e) for e in entries)}])")
+        elif kind == "matrix":
+            r, c = shape
+            entries = out_red[pos : pos + r * c]
+            pos += r * c
+            results.append(f"_matrix([{', '.join(_entry(e) for e in entries)}], {r}, {c})")
+        else:
+            results.append(f"_scalar({_entry(out_red[pos])})")
+            pos += 1
+    lines.append(f"    return {results[0] if len(results) == 1 else '(' + ', '.join(results) + ')'}")
+    return "\n".join(lines) + "\n", len(replacements)
+
+
+def generate_module(label: str, specs, t: sp.Symbol, params) -> GeneratedModule:
+    """Write the functions ``specs`` into one module and execute it.
+
+    Parameters
+    ----------
+    label : str
+        Shown in the module's file name (tracebacks).
+    specs : sequence of FunctionSpec
+    t : Symbol
+        The time symbol (named ``t``).
+    params : sequence of (str, Symbol)
+        Keys of the ``args`` dict and the symbols they bind.
+    """
+    header = (
+        f'"""Generated by lobattodae.mechanics for {label!s}: do not edit."""\n'
+    )
+    bodies = []
+    counts = {}
+    for spec in specs:
+        src, count = _function_source(spec, t, params)
+        bodies.append(src)
+        counts[spec.name] = count
+    source = header + "\n\n".join(bodies)
+    filename = f"<lobattodae.mechanics generated #{next(_counter)}: {label}>"
+    namespace = {
+        "__name__": "lobattodae.mechanics._generated",
+        "jax": jax,
+        "functools": functools,
+        "_stack": _stack,
+        "_matrix": _matrix,
+        "_scalar": _scalar,
+        "spd_solve": spd_solve,
+    }
+    code = compile(source, filename, "exec")
+    linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
+    exec(code, namespace)  # noqa: S102 - our own generated source
+    functions = {spec.name: namespace[spec.name] for spec in specs}
+    return GeneratedModule(functions=functions, source=source, filename=filename, cse_counts=counts)
