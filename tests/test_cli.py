@@ -301,7 +301,17 @@ def test_run_dt_and_t1(tmp_path, capsys):
     with np.load(f) as z:
         np.testing.assert_allclose(z["t"], [0.0, 0.25, 0.5, 0.75, 1.0], rtol=0, atol=1e-15)
         assert float(z["h"]) == 0.25
-    assert "steps: 4 of 4" in out
+    assert "steps: 4 (5 output rows)" in out
+
+
+def test_run_adaptive_with_t_eval(tmp_path, capsys):
+    f = tmp_path / "sol.npz"
+    code, out, err = _main(["run", "--example", "particle", "--stages", "3", "--rtol", "1e-8", "--atol", "1e-10",
+                            "--t1", "1", "--t-eval", "0.25", "0.5", "1.0", "--no-progress", "--save", f], capsys)
+    assert code == 0, err
+    with np.load(f) as z:
+        np.testing.assert_array_equal(z["t"], [0.25, 0.5, 1.0])
+    assert "rejected" in out and "(3 output rows)" in out
 
 
 class _SolveCalled(Exception):
@@ -597,7 +607,7 @@ def test_demo_defaults():
         (["run", "--example", "particle", "--n-steps", "-3"], ["--n-steps", "positive integer"]),
         (["run", "--example", "particle", "--t1", "-1", "--n-steps", "5"], ["--t1", "positive"]),
         (["run", "--example", "particle", "--dt", "0.1", "--n-steps", "5"], ["not allowed with argument"]),
-        (["run", "--example", "particle"], ["one of the arguments --dt --n-steps is required"]),
+        (["run", "--example", "particle", "--rtol", "0"], ["--rtol", "positive finite number"]),
         (["run", "--n-steps", "5"], ["required", "--example"]),
         (["run", "--example", "particle", "--n-steps", "5", "--lam-start", "zero"],
          ["--lam-start", "invalid choice", "'zero'", "auto", "previous", "consistent"]),

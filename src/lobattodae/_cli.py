@@ -146,9 +146,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="integrate an example and report constraint and invariants")
     p.add_argument("--example", type=_example_name, required=True)
     p.add_argument("--stages", type=_stages, default=3)
-    step = p.add_mutually_exclusive_group(required=True)
-    step.add_argument("--dt", type=_positive_float)
-    step.add_argument("--n-steps", type=_positive_int)
+    step = p.add_mutually_exclusive_group(required=False)
+    step.add_argument("--dt", type=_positive_float, help="constant steps of at most this size")
+    step.add_argument("--n-steps", type=_positive_int, help="this many constant steps")
+    p.add_argument("--rtol", type=_positive_float, default=None,
+                   help="adaptive steps (the default without --dt/--n-steps): relative tolerance (1e-8)")
+    p.add_argument("--atol", type=_positive_float, default=None, help="adaptive steps: absolute tolerance (1e-10)")
+    p.add_argument("--t-eval", type=float, nargs="+", default=None, help="output times (from the dense output)")
+    p.add_argument("--save-every", type=_positive_int, default=None, help="keep every k-th step point")
     p.add_argument("--t1", type=_positive_float, default=None, help="final time (default: the example's)")
     p.add_argument("--plot", default=None, help="PNG file: constraint, invariants and Newton iterations")
     p.add_argument("--save", default=None, help="write the solution to F.npz or F.csv")
@@ -369,16 +374,19 @@ def _cmd_run(ns) -> int:
     with warnings.catch_warnings(record=True) as caught:  # reported below, in the command line's words
         sol = solve(
             ex.problem, LobattoIIIAIIIB(stages=ns.stages, lam_start=ns.lam_start), (t0, t1), ex.q0, ex.p0,
-            n_steps=ns.n_steps, dt=ns.dt, lam0=ex.lam0, args=ex.args, throw=False,
+            n_steps=ns.n_steps, dt=ns.dt, rtol=ns.rtol, atol=ns.atol, t_eval=ns.t_eval, save_every=ns.save_every,
+            lam0=ex.lam0, args=ex.args, throw=False,
             progress=not ns.no_progress, max_recoveries=ns.max_recoveries,
             checkpoint=checkpoint, checkpoint_every=ns.checkpoint_every if checkpoint else None,
             resume=ns.resume,
         )
     message, lam_warning = _split_warning(sol.message)
     print(message)
-    print(f"steps: {len(sol.t) - 1} of {sol.stats['n_steps']}, h = {sol.stats['h']:.6g}, "
+    h = f"h = {sol.stats['h']:.6g}" if sol.stats["h"] is not None else f"{sol.stats['n_rejected']} rejected"
+    print(f"steps: {sol.stats['n_steps']} ({len(sol.t)} output rows), {h}, "
           f"time {sol.stats['compile_and_run_time']:.2f} s (including compilation)")
-    print(f"max ‖φ(q_k, p_k)‖∞ = {np.max(sol.stats['constraint_residual']):.2e}")
+    print(f"max ‖φ(q_k, p_k)‖∞ = {sol.stats['max_constraint_residual']:.2e} over the step points"
+          + (f", {np.max(sol.stats['constraint_residual']):.2e} at the output rows" if ns.t_eval else ""))
     _print_lam_bookkeeping(sol, ns.lam_start, lam_warning)
     if sol.stats["recoveries"]:
         print(f"recovered steps (retried as substeps): {sol.stats['recoveries']}")
@@ -443,7 +451,7 @@ def _save_solution(sol, path: Path) -> None:
     if path.suffix.lower() == ".npz":
         np.savez(
             path, t=sol.t, q=sol.q, p=sol.p, lam=sol.lam, status=int(sol.status),
-            message=sol.message, h=sol.stats["h"],
+            message=sol.message, h=np.nan if sol.stats["h"] is None else sol.stats["h"],
             constraint_residual=sol.stats["constraint_residual"],
             newton_iterations=sol.stats["newton_iterations"],
         )

@@ -185,8 +185,19 @@ class AdaptiveState(NamedTuple):
     n_rejected: jax.Array  # int32
 
 
+class _TimeAndEnd:
+    """``done``/``time`` of controllers whose state holds the current time ``t`` and the end
+    ``t_end`` (an accepted step that reaches the end sets ``t = t_end`` exactly)."""
+
+    def done(self, st):
+        return st.t == st.t_end
+
+    def time(self, st):
+        return st.t
+
+
 @dataclass(frozen=True)
-class PIController:
+class PIController(_TimeAndEnd):
     r"""Error-controlled step sizes: Gustafsson's PI rule on the embedded error estimate.
 
     The scaled error of a step is ``err = rms(e_i / (atol' + rtol' max(|y0_i|, |y1_i|)))`` over
@@ -261,12 +272,6 @@ class PIController:
         result = jnp.where(small, Result.STEP_SIZE_TOO_SMALL, Result.SUCCESSFUL).astype(jnp.int32)
         return accept, new, result
 
-    def done(self, st: AdaptiveState):
-        return st.t == st.t_end
-
-    def time(self, st: AdaptiveState):
-        return st.t
-
     def stop_at(self, st: AdaptiveState, t_stop) -> AdaptiveState:
         return st._replace(t_end=t_stop, h=t_stop - st.t)
 
@@ -291,7 +296,7 @@ def phase_space_speed(t, q, p, lam, f, g, args):
 
 
 @dataclass(frozen=True)
-class ReversibleStepSize:
+class ReversibleStepSize(_TimeAndEnd):
     r"""Explicit, time-reversible step-size control (Hairer & Söderlind, SIAM J. Sci. Comput.
     26, 2005) for reversible problems.
 
@@ -358,12 +363,6 @@ class ReversibleStepSize:
         new = st._replace(t=jnp.where(ok, t1, st.t), rho=jnp.where(ok, rho, st.rho))
         result = jnp.where(ok, Result.SUCCESSFUL, report.result).astype(jnp.int32)
         return ok, new, result
-
-    def done(self, st: ReversibleState):
-        return st.t == st.t_end
-
-    def time(self, st: ReversibleState):
-        return st.t
 
     def stop_at(self, st: ReversibleState, t_stop) -> ReversibleState:
         return st._replace(t_end=t_stop)
