@@ -382,11 +382,15 @@ def _cmd_run(ns) -> int:
         )
     message, lam_warning = _split_warning(sol.message)
     print(message)
-    h = f"h = {sol.stats['h']:.6g}" if sol.stats["h"] is not None else f"{sol.stats['n_rejected']} rejected"
-    print(f"steps: {sol.stats['n_steps']} ({len(sol.t)} output rows), {h}, "
-          f"time {sol.stats['compile_and_run_time']:.2f} s (including compilation)")
-    print(f"max ‖φ(q_k, p_k)‖∞ = {sol.stats['max_constraint_residual']:.2e} over the step points"
-          + (f", {np.max(sol.stats['constraint_residual']):.2e} at the output rows" if ns.t_eval else ""))
+    if sol.stats["h"] is not None:  # constant steps: how many of how many
+        total = round(abs(t1 - t0) / abs(sol.stats["h"]))
+        steps = f"{sol.stats['n_steps']} of {total}, h = {sol.stats['h']:.6g}"
+    else:
+        steps = f"{sol.stats['n_steps']} ({sol.stats['n_rejected']} rejected), {len(sol.t)} output rows"
+    print(f"steps: {steps}, time {sol.stats['compile_and_run_time']:.2f} s (including compilation)")
+    print(f"max ‖φ(q_k, p_k)‖∞ = {sol.stats['max_constraint_residual']:.2e}")
+    if ns.t_eval:
+        print(f"max ‖φ‖∞ at the --t-eval rows (dense output, between steps) = {np.max(sol.stats['constraint_residual']):.2e}")
     _print_lam_bookkeeping(sol, ns.lam_start, lam_warning)
     if sol.stats["recoveries"]:
         print(f"recovered steps (retried as substeps): {sol.stats['recoveries']}")
