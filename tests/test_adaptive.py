@@ -177,6 +177,15 @@ def test_integrate_adaptive_is_vmappable_and_reports_max_steps(sleigh, method):
     r = L.integrate_adaptive(sleigh.problem, method, sleigh.t_span, sleigh.q0, sleigh.p0, sleigh.lam0, sleigh.args,
                              rtol=1e-12, atol=1e-12, max_steps=8)
     assert int(r.status) == L.Result.MAX_STEPS and int(r.n_rows) == 9
+    # with t_eval, max_steps still bounds the attempts; rows that end before t1 are a success
+    te = np.linspace(0.0, 2.0, 50)
+    r = L.integrate_adaptive(sleigh.problem, method, sleigh.t_span, sleigh.q0, sleigh.p0, sleigh.lam0, sleigh.args,
+                             rtol=1e-9, atol=1e-9, t_eval=te, max_steps=10)
+    assert int(r.status) == L.Result.MAX_STEPS and int(r.n_steps) + int(r.n_rejected) == 10
+    r = L.integrate_adaptive(sleigh.problem, method, sleigh.t_span, sleigh.q0, sleigh.p0, sleigh.lam0, sleigh.args,
+                             rtol=1e-9, atol=1e-9, t_eval=np.array([0.1, 0.5, 1.0]), max_steps=1000)
+    assert int(r.status) == 0 and int(r.n_rows) == 3
+    np.testing.assert_allclose(np.asarray(r.q), sleigh.exact(np.array([0.1, 0.5, 1.0]))[0], atol=1e-7)
 
 
 def test_events_must_return_one_finite_number(sleigh, method):

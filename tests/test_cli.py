@@ -206,16 +206,18 @@ def test_convergence_single_step_count_prints_na_not_exact(convergence_files, ca
 
 
 def test_convergence_order_text_exact_only_at_the_round_off_floor():
+    from lobattodae._convergence import order_text  # the one rule, used by the CLI's table too
+
     # a fitted order
-    assert _cli._order_text(3.987, [1e-3, 1e-4], 1e-13) == "3.99"
+    assert order_text(3.987, [1e-3, 1e-4], 1e-13) == "3.99"
     # NaN because every error is at round-off: the component is exact
-    assert _cli._order_text(float("nan"), [1e-16, 2e-16], 1e-13) == "exact"
-    assert _cli._order_text(float("nan"), [1e-16], 1e-13) == "exact"
+    assert order_text(float("nan"), [1e-16, 2e-16], 1e-13) == "exact"
+    assert order_text(float("nan"), [1e-16], 1e-13) == "exact"
     # NaN for want of points above the floor: not "exact"
-    assert _cli._order_text(float("nan"), [1e-4], 1e-13) == "n/a"
-    assert _cli._order_text(float("nan"), [1e-4, 1e-16], 1e-13) == "n/a"
+    assert order_text(float("nan"), [1e-4], 1e-13) == "n/a"
+    assert order_text(float("nan"), [1e-4, 1e-16], 1e-13) == "n/a"
     # failed runs (NaN errors) are no evidence of exactness
-    assert _cli._order_text(float("nan"), [float("nan"), float("nan")], 1e-13) == "n/a"
+    assert order_text(float("nan"), [float("nan"), float("nan")], 1e-13) == "n/a"
 
 
 # ------------------------------------------------------------------------------ run

@@ -275,49 +275,6 @@ def _save_plot(axes_fn, path: Path) -> None:
     print(f"wrote {path}")
 
 
-def _order_text(observed: float, errors, floor: float) -> str:
-    """An observed order for the table: ``exact`` only where every error is at the round-off
-    floor (nothing to fit because the component is exact), ``n/a`` where the order is NaN for
-    want of points (fewer than two step counts with errors above the floor, or failed runs)."""
-    if np.isfinite(observed):
-        return f"{observed:.2f}"
-    errors = np.asarray(errors, float)
-    errors = errors[np.isfinite(errors)]
-    if errors.size and np.all(errors <= floor):
-        return "exact"
-    return "n/a"
-
-
-def _convergence_table(study) -> str:
-    """The study's table (as ``ConvergenceStudy.table``), with ``n/a`` for orders that could not
-    be fitted instead of ``exact``."""
-    from ._convergence import COMPONENTS
-
-    lines = [
-        f"Convergence study: {study.name} (errors against the {study.reference} solution)",
-        f"{'s':>3} | {'q obs':>6} {'theory':>6} | {'p obs':>6} {'theory':>6} | "
-        f"{'lam obs':>7} {'theory':>6} | {'max|phi|':>9}",
-        "-" * 74,
-    ]
-    used = set()
-    for s in study.stages:
-        o = {c: _order_text(study.observed[s][c], study.errors[s][c], study.floors[c]) for c in COMPONENTS}
-        e = {c: ("exact" if study.expected[s][c] is None else study.expected[s][c]) for c in COMPONENTS}
-        used.update(o.values())
-        lines.append(
-            f"{s:>3} | {o['q']:>6} {e['q']:>6} | {o['p']:>6} {e['p']:>6} | "
-            f"{o['lam']:>7} {e['lam']:>6} | {study.constraint_residual[s]:9.1e}"
-        )
-    if "n/a" in used:
-        lines.append("n/a: no order can be fitted (fewer than two step counts with errors above round-off); "
-                     "give more --n-steps")
-    if "exact" in used:
-        lines.append("exact: every error is at the round-off floor")
-    if study.notes:
-        lines.append(f"note: {study.notes}")
-    return "\n".join(lines)
-
-
 def _cmd_convergence(ns) -> int:
     from ._plotting import plot_convergence
 
@@ -325,7 +282,7 @@ def _cmd_convergence(ns) -> int:
     js = _output_file(ns.json, [".json"], "--json")
     start = time.perf_counter()
     study = _study(ns.example, ns.stages, ns.n_steps)
-    print(_convergence_table(study))
+    print(study.table(more="give more --n-steps"))
     print(f"({time.perf_counter() - start:.1f} s including compilation)")
     if js:
         study.to_json(js)
@@ -343,7 +300,7 @@ def _cmd_demo(ns) -> int:
     print("Theory (paper, Corollary): q, p ~ h^(2s-2); λ ~ h^s (s even), h^(s-1) (s odd)\n")
     start = time.perf_counter()
     study = _study(ns.example, ns.stages, None)
-    print(_convergence_table(study))
+    print(study.table(more="give more --n-steps"))
     worst = max(study.constraint_residual.values())
     print(f"\nmax constraint residual ‖φ(q_k, p_k)‖∞ over all runs: {worst:.1e}")
     print(f"({time.perf_counter() - start:.1f} s including compilation)")

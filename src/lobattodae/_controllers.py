@@ -140,7 +140,7 @@ class ConstantStepSize:
 
     def done(self, st: ConstantState):
         direction = jnp.sign(st.t1 - st.t0)
-        return (st.k >= st.n) | (direction * (self.time(st) - st.t_end) >= 0) & (st.k > 0)
+        return (st.k >= st.n) | (direction * (self.time(st) - st.t_end) >= 0)
 
     def stop_at(self, st: ConstantState, t_stop) -> ConstantState:
         return st._replace(t_end=t_stop)

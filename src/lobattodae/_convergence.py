@@ -101,8 +101,9 @@ class ConvergenceStudy:
     reference: str = "exact"
     notes: str = field(default="")
 
-    def table(self) -> str:
-        """Observed vs theoretical orders, one row per s."""
+    def table(self, more: str = "give more step counts (n_steps)") -> str:
+        """Observed vs theoretical orders, one row per s; ``more`` is the advice printed under
+        ``n/a`` orders (the command line names its own option)."""
         lines = [
             f"Convergence study: {self.name} (errors against the {self.reference} solution)",
             f"{'s':>3} | {'q obs':>6} {'theory':>6} | {'p obs':>6} {'theory':>6} | "
@@ -124,7 +125,7 @@ class ConvergenceStudy:
         if "n/a" in used:
             lines.append(
                 "n/a: no order can be fitted (fewer than two step counts with errors above round-off, "
-                "or failed runs); give more step counts (n_steps)"
+                f"or failed runs); {more}"
             )
         if "exact" in used:
             lines.append("exact: every error is at the round-off floor")

@@ -195,8 +195,9 @@ def _row(problem, args, t, q, p, lam, info=None) -> Record:
 
 
 def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: State, args, length: int,
-        every=1, t_eval=None):
-    """Advance ``state`` by at most ``length`` step attempts; return ``(state, Chunk)``.
+        every=1, t_eval=None, max_attempts: int | None = None):
+    """Advance ``state`` by at most ``max_attempts`` step attempts (default ``length``); return
+    ``(state, Chunk)``.
 
     The loop also stops when the controller is done, a step fails, or the buffers are full
     (``length`` rows; with ``output.t_eval`` a step can pass several rows of ``t_eval``, the
@@ -213,6 +214,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
     direction = jnp.sign(controller.proposal(state.controller)[1])
     t_eval = jnp.full((1,), jnp.nan, dtype) if t_eval is None else jnp.asarray(t_eval, dtype)
     every = jnp.asarray(every, jnp.int32)
+    max_attempts = length if max_attempts is None else max_attempts
 
     def pending(st, n_rows):
         k = jnp.minimum(st.k_eval, t_eval.shape[0] - 1)
@@ -245,7 +247,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         st, buf, attempts = carry
         rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
         return (
-            (st.result == Result.SUCCESSFUL) & ~controller.done(st.controller) & (attempts < length)
+            (st.result == Result.SUCCESSFUL) & ~controller.done(st.controller) & (attempts < max_attempts)
             & (n_rows < length) & (n_events + n_ev <= length) & ~pending(st, n_rows)
         )
 
@@ -280,7 +282,8 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
             q=keep(q1, st.q), p=keep(p1, st.p), lam=keep(lam1, st.lam),
             stepper=jax.tree_util.tree_map(keep, stepper, st.stepper),
             controller=ctrl,
-            last=jax.tree_util.tree_map(keep, info.dense, st.last),
+            # only t_eval rows and events read the last step's dense output: keep the loop lean otherwise
+            last=jax.tree_util.tree_map(keep, info.dense, st.last) if output.t_eval or n_ev else st.last,
             events=ev_state._replace(
                 counts=ev_state.counts + (final_event & (jnp.arange(n_ev) == st.events.stopping)).astype(jnp.int32)
             ),
@@ -448,28 +451,16 @@ def _integrate_adaptive(problem, method, controller, max_steps, t0, t1, q0, p0, 
     output = Output(t_eval=t_eval is not None)
     state = init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
     length = max_steps if t_eval is None else t_eval.shape[0]
-    state, chunk = _run_to_limit(problem, method, controller, output, state, args, length, max_steps, t_eval)
+    state, chunk = run(problem, method, controller, output, state, args, length, 1, t_eval, max_attempts=max_steps)
     rec = chunk.rows
-    status = jnp.where(
-        (state.result == Result.SUCCESSFUL) & ~controller.done(state.controller), Result.MAX_STEPS, state.result
-    ).astype(jnp.int32)
+    reached = controller.done(state.controller) | (t_eval is not None and chunk.n_rows == length)  # every row written
+    status = jnp.where((state.result == Result.SUCCESSFUL) & ~reached, Result.MAX_STEPS, state.result).astype(jnp.int32)
     if t_eval is None:
         return AdaptiveResult(
             _with_initial(t0, rec.t), _with_initial(q0, rec.q), _with_initial(p0, rec.p), _with_initial(lam0, rec.lam),
             chunk.n_rows + 1, state.n_accepted, state.n_rejected, status,
         )
     return AdaptiveResult(rec.t, rec.q, rec.p, rec.lam, chunk.n_rows, state.n_accepted, state.n_rejected, status)
-
-
-def _run_to_limit(problem, method, controller, output, state, args, length, max_steps, t_eval):
-    """One :func:`run` whose attempt limit is ``max_steps`` (and row buffer ``length``)."""
-    if length == max_steps:
-        return run(problem, method, controller, output, state, args, length, 1, t_eval)
-    # rows and attempts differ (t_eval): give the loop the larger buffer, keep the first rows
-    big = max(length, max_steps)
-    state, chunk = run(problem, method, controller, output, state, args, big, 1, t_eval)
-    rows = Record(*(x[:length] for x in chunk.rows))
-    return state, chunk._replace(rows=rows)
 
 
 _integrate_adaptive_compiled = jax.jit(_integrate_adaptive, static_argnums=(0, 1, 2, 3))
