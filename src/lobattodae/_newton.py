@@ -23,7 +23,7 @@ import jax.numpy as jnp
 
 from ._results import Result
 
-__all__ = ["JacobianCache", "NewtonInfo", "NewtonOptions", "empty_jacobian_cache", "newton_solve"]
+__all__ = ["JacobianCache", "NewtonInfo", "NewtonOptions", "empty_jacobian_cache", "implicit_root", "newton_solve"]
 
 #: A reused Jacobian is refreshed (see ``needs_refresh``) when, above round-off, it contracts
 #: slower than THETA_REFRESH or its rate predicts more than REFRESH_PREDICTED further
@@ -263,7 +263,12 @@ def newton_solve(
 
     Returns the iterate, a :class:`NewtonInfo` and the Jacobian cache to hand to the next
     solve (marked invalid after a failure, so that the next solve starts fresh).
+
+    The iterations are never differentiated: the iterate carries no derivatives. Pass it
+    through :func:`implicit_root` to get those of the exact root.
     """
+    x0, cache, params = jax.lax.stop_gradient((x0, cache, params))
+
     def iterate(st):
         return newton_step(fn, params, st, options)
 
@@ -288,3 +293,37 @@ def newton_solve(
     ok = out.result == Result.SUCCESSFUL
     cache = out.cache._replace(valid=jnp.logical_and(out.cache.valid, ok))
     return out.x, NewtonInfo(out.result, out.k, out.res_norm, out.n_jac), cache
+
+
+# -- derivatives of the root ------------------------------------------------------------------
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
+def implicit_root(fn, jac_fn, x, params):
+    r"""``x`` (a root of ``fn(·, params)``), with the derivatives of the exact root.
+
+    By the implicit function theorem, differentiating ``fn(x(θ), θ) = 0`` gives
+
+        ∂x/∂θ · dθ = −J⁻¹ (∂fn/∂θ · dθ),   J = ∂fn/∂x at the root,
+
+    one forward-mode pass of ``fn`` in θ and one solve with J (an LU factorisation of the
+    Jacobian at the root, not the reused one of simplified Newton). The solve is a
+    ``lax.custom_linear_solve`` with its transposed solve, so JAX transposes this rule for
+    reverse mode: the discrete adjoint ``θ̄ = −(∂fn/∂θ)ᵀ J⁻ᵀ x̄`` of the stage solve, which
+    never differentiates the iterations. The tangent of ``x`` itself (the guess) is ignored.
+    """
+    return x
+
+
+@implicit_root.defjvp
+def _implicit_root_jvp(fn, jac_fn, primals, tangents):
+    x, params = primals
+    _, params_dot = tangents
+    _, dfn = jax.jvp(lambda p: fn(x, p), (params,), (params_dot,))
+    _, jac = jac_fn(x, params)
+    factors = jax.scipy.linalg.lu_factor(jac)
+    dx = jax.lax.custom_linear_solve(
+        lambda v: jac @ v,
+        -dfn,
+        solve=lambda _, b: jax.scipy.linalg.lu_solve(factors, b),
+        transpose_solve=lambda _, b: jax.scipy.linalg.lu_solve(factors, b, trans=1),
+    )
+    return x, dx

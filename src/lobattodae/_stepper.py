@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from . import _stage_equations as se
-from ._newton import JacobianCache, NewtonOptions, empty_jacobian_cache, newton_solve
+from ._newton import JacobianCache, NewtonOptions, empty_jacobian_cache, implicit_root, newton_solve
 from ._problem import consistent_lambda
 from ._results import Result
 from ._tableau import LobattoPair, lobatto_pair
@@ -263,14 +263,22 @@ class LobattoIIIAIIIB:
         jac_fn = se.stage_jacobian if self.jacobian == "structured" else se.stage_jacobian_autodiff
         h_ok = jnp.abs(h - state.h_jacobian) <= H_CHANGE_REFRESH * jnp.abs(h)
         cache = state.jacobian._replace(valid=jnp.logical_and(state.jacobian.valid, h_ok))
-        x, ninfo, cache = newton_solve(
-            residual, functools.partial(jac_fn, problem, pair, layout), x0, params, cache, self.newton
-        )
+        jacobian = functools.partial(jac_fn, problem, pair, layout)
+        x, ninfo, cache = newton_solve(residual, jacobian, x0, params, cache, self.newton)
         h_jac = jnp.where(ninfo.n_jacobians > 0, h, state.h_jacobian)
 
-        stages = se.stage_values(problem, pair, layout, x, params)
-        q1, p1, lam1 = se.step_values(pair, params, stages)
-        lam_hidden = consistent_lambda(problem, t0 + h, q1, p1, lam1, args, iterations=1)
+        @jax.checkpoint
+        def complete(x, params):
+            # Derivatives are those of the exact stage solution (implicit function theorem);
+            # checkpointed, so that reverse mode keeps (x, params) per step and recomputes the
+            # stage Jacobian and the vector fields from them instead of storing them.
+            x = implicit_root(residual, jacobian, x, params)
+            stages = se.stage_values(problem, pair, layout, x, params)
+            q1, p1, lam1 = se.step_values(pair, params, stages)
+            lam_hidden = consistent_lambda(problem, params.t0 + params.h, q1, p1, lam1, params.args, iterations=1)
+            return stages, q1, p1, lam1, lam_hidden
+
+        stages, q1, p1, lam1, lam_hidden = complete(x, params)
         drift = jnp.max(jnp.abs(lam1 - lam_hidden))
         monitor, excursion = self._watch(state.monitor, drift, lam1, state.resync)
         history = self._remember(params, state.history, stages, plain)
@@ -310,12 +318,15 @@ class LobattoIIIAIIIB:
     @staticmethod
     def _remember(params, history: History, stages: se.Stages, plain) -> History:
         """The stages of this step for the next predictor, and the error the plain
-        extrapolation made on them (the next correction)."""
+        extrapolation made on them (the next correction). The predictor only moves Newton's
+        start, never the solution: no derivatives flow through the history."""
         slopes = Slopes(stages.V, stages.W, stages.Lam)
         if plain is None:
-            return History(slopes, history.correction, params.h, jnp.asarray(True), jnp.asarray(False))
-        correction = Slopes(*(x - e for x, e in zip(slopes, plain)))
-        return History(slopes, correction, params.h, jnp.asarray(True), history.have_slopes)
+            history = History(slopes, history.correction, params.h, jnp.asarray(True), jnp.asarray(False))
+        else:
+            correction = Slopes(*(x - e for x, e in zip(slopes, plain)))
+            history = History(slopes, correction, params.h, jnp.asarray(True), history.have_slopes)
+        return jax.lax.stop_gradient(history)
 
     @staticmethod
     def _watch(monitor: LamMonitor, drift, lam1, restarted):
