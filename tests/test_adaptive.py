@@ -82,18 +82,20 @@ def test_save_every_and_final_keep_a_subset_of_the_same_steps(sleigh, method):
 
 
 def test_dense_output_order_between_step_points(sleigh):
-    """sol.sol(t) between step points converges like h^(s+1) for q (collocation polynomial)."""
+    """sol.sol(t) between step points converges like h^s for q (the slopes V_j = f(Q_j, P_j) use
+    the IIIB stage momenta; ``tests/test_dense.py`` covers p, λ and more s). Evaluated at
+    θ = 0.3, which is not a node (θ = 1/2 is one for s = 3 and would measure a stage value)."""
     errs, hs = [], []
     m = L.LobattoIIIAIIIB(stages=3)
     for n in (40, 80, 160):
         sol = _solve(sleigh, m, n_steps=n, dense_output=True)
-        mid = 0.5 * (sol.t[:-1] + sol.t[1:])
+        mid = 0.7 * sol.t[:-1] + 0.3 * sol.t[1:]
         q, _, _ = sol.sol(mid)
         qe, _, _ = sleigh.exact(mid)
         errs.append(np.max(np.abs(q - qe)))
         hs.append(2.0 / n)
     order = np.polyfit(np.log(hs), np.log(errs), 1)[0]
-    assert order > 3.6, (errs, order)
+    assert order > 2.7, (errs, order)
     with pytest.raises(ValueError, match="integrated interval"):
         sol.sol(3.0)
 

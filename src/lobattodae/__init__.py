@@ -34,6 +34,7 @@ from ._problem import (  # noqa: E402
     PartitionedDAE,
     consistent_lambda,
     hidden_constraint,
+    project_momenta,
 )
 from ._results import Result  # noqa: E402
 from ._loop import AdaptiveResult, IntegrateResult, integrate, integrate_adaptive  # noqa: E402
@@ -41,6 +42,7 @@ from ._controllers import PIController, ReversibleStepSize  # noqa: E402
 from ._dense import DenseOutput  # noqa: E402
 from ._events import Event  # noqa: E402
 from ._solve import Solution, solve  # noqa: E402
+from ._ensemble import EnsembleFiles, EnsembleResult, ensemble, load_ensemble  # noqa: E402
 from ._stepper import LobattoIIIAIIIB, StepInfo, StepperState  # noqa: E402
 from ._tableau import LobattoPair, lobatto_iiia, lobatto_iiib, lobatto_nodes, lobatto_pair, lobatto_weights  # noqa: E402
 
@@ -61,6 +63,10 @@ __all__ = [
     "PIController",
     "ReversibleStepSize",
     "integrate_adaptive",
+    "EnsembleFiles",
+    "EnsembleResult",
+    "ensemble",
+    "load_ensemble",
     "ConvergenceStudy",
     "TableauReport",
     "check_tableau",
@@ -100,6 +106,7 @@ __all__ = [
     "lobatto_nodes",
     "lobatto_pair",
     "lobatto_weights",
+    "project_momenta",
     "solve",
     "validate_initial_values",
 ]

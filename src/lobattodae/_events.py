@@ -4,8 +4,9 @@ compiled loop.
 After every accepted step the event functions are evaluated at the new step point. A sign
 change (filtered by ``direction``) between the two step points is located on the step's
 dense output (:mod:`lobattodae._dense`) by the Illinois variant of regula falsi, safeguarded
-by bisection, to ``|Δθ| ≤ THETA_TOL`` in the step's scaled time θ (an error in t far below
-1e-12 relative). A *terminal* event does not take the dense value: the loop rejects the
+by bisection, to ``|Δθ| ≤ THETA_TOL`` in the step's scaled time θ: the zero of the dense
+output to round-off, so an event time is as accurate as the dense output (order s between
+step points, ``docs/variable-steps.md``). A *terminal* event does not take the dense value: the loop rejects the
 step and re-takes it to end exactly at the located time, so that the final state is a
 step point of the method (``φ = 0`` to round-off) and the run ends there.
 """
@@ -30,13 +31,14 @@ THETA_TOL = 4 * 2.220446049250313e-16
 MAX_ROOT_ITERATIONS = 80
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True)
 class Event:
     """An event function ``fn(t, q, p, args) -> scalar`` and what its zeros do.
 
     ``terminal``: 0 (record only), or stop the run at the k-th zero (``True`` means 1).
     ``direction``: record zeros where ``fn`` increases (> 0), decreases (< 0) or both (0),
-    in the direction of integration.
+    in the direction of integration. Events compare equal when their fields do, so solving again
+    with the same function reuses the compiled loop.
     """
 
     fn: Callable[..., Any]
@@ -53,7 +55,7 @@ def as_events(events) -> tuple[Event, ...]:
     ``terminal`` and ``direction`` are read from each function) into :class:`Event` records."""
     if events is None:
         return ()
-    if callable(events) and not isinstance(events, (list, tuple)):
+    if isinstance(events, Event) or (callable(events) and not isinstance(events, (list, tuple))):
         events = [events]
     if not isinstance(events, (list, tuple)):
         raise LobattoDAEInputError(f"events must be a callable or a list of callables; got {type(events).__name__}.")

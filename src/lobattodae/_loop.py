@@ -29,6 +29,7 @@ import numpy as np
 
 from ._controllers import ConstantStepSize, ControlOptions, PIController, StepReport
 from ._dense import DenseStep, empty_dense_step, evaluate
+from ._errors import LobattoDAEInputError
 from ._events import Event, EventState, crossings, event_values, locate
 from ._results import Result
 from ._stepper import LobattoIIIAIIIB, StepperState, for_error_control
@@ -496,8 +497,6 @@ _integrate_compiled = jax.jit(_integrate, static_argnums=(0, 1, 2, 3))
 
 def _check_count(name: str, value) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        from ._errors import LobattoDAEInputError
-
         raise LobattoDAEInputError(f"{name} must be a positive integer (it sets the output shape); got {value!r}.")
 
 
@@ -547,9 +546,12 @@ class AdaptiveResult(NamedTuple):
     status: jax.Array  # int32 Result code (MAX_STEPS when max_steps ran out first)
 
 
-def _integrate_adaptive(problem, method, controller, max_steps, t0, t1, q0, p0, lam0, args, options, t_eval):
+def _integrate_adaptive(problem, method, controller, max_steps, differentiable, checkpoints, t0, t1, q0, p0, lam0,
+                        args, options, t_eval):
     output = Output(t_eval=t_eval is not None)
     state = init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
+    if differentiable:
+        return _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval)
     length = max_steps if t_eval is None else t_eval.shape[0]
     state, chunk = run(problem, method, controller, output, state, args, length, 1, t_eval, max_attempts=max_steps)
     rec = chunk.rows
@@ -563,12 +565,47 @@ def _integrate_adaptive(problem, method, controller, max_steps, t0, t1, q0, p0, 
     return AdaptiveResult(rec.t, rec.q, rec.p, rec.lam, chunk.n_rows, state.n_accepted, state.n_rejected, status)
 
 
-_integrate_adaptive_compiled = jax.jit(_integrate_adaptive, static_argnums=(0, 1, 2, 3))
+def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval):
+    """:func:`integrate_adaptive` through :func:`scan_run` (reverse-mode differentiable).
+
+    The accepted steps are moved to the front of the output (a scatter, which differentiates
+    like a gather); ``t_eval`` rows are read from the accepted steps' dense output after the
+    loop, each from the step that contains its time.
+    """
+    state, steps = scan_run(problem, method, controller, state, args, max_steps, checkpoints, dense=t_eval is not None)
+    n_rows = jnp.sum(steps.kept.astype(jnp.int32))
+    at = jnp.where(steps.kept, jnp.cumsum(steps.kept) - 1, max_steps)
+
+    def front(x):
+        return jnp.full_like(x, jnp.nan).at[at].set(x, mode="drop")
+
+    status = jnp.where((state.result == Result.SUCCESSFUL) & ~controller.done(state.controller), Result.MAX_STEPS,
+                       state.result).astype(jnp.int32)
+    if t_eval is None:
+        rows = [_with_initial(x0, front(x)) for x0, x in ((t0, steps.t), (q0, steps.q), (p0, steps.p), (lam0, steps.lam))]
+        return AdaptiveResult(*rows, n_rows + 1, state.n_accepted, state.n_rejected, status)
+    n, m = q0.shape[-1], lam0.shape[-1]
+    dense = unpack_dense(front(steps.dense), method.stages, n, m)
+    ends = front(steps.t)
+    direction = jnp.sign(ends[0] - t0)
+    # the step containing t: the first accepted one that ends at or after it
+    k = jnp.sum((direction * (ends[None, :] - t_eval[:, None]) < 0) & (jnp.arange(max_steps) < n_rows), axis=1)
+    inside = k < n_rows
+    k = jnp.minimum(k, max_steps - 1)
+    pick = jax.tree_util.tree_map(lambda x: x[k], dense)
+    q, p, lam = jax.vmap(lambda st, tt: evaluate(method.pair, st, tt))(pick, t_eval)
+    nan = functools.partial(jnp.where, inside[:, None])
+    return AdaptiveResult(jnp.where(inside, t_eval, jnp.nan), nan(q, jnp.nan), nan(p, jnp.nan), nan(lam, jnp.nan),
+                          jnp.sum(inside.astype(jnp.int32)), state.n_accepted, state.n_rejected, status)
+
+
+_integrate_adaptive_compiled = jax.jit(_integrate_adaptive, static_argnums=(0, 1, 2, 3, 4, 5))
 
 
 def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, args=None, *, rtol=1e-8, atol=1e-10,
                        first_step=0.0, max_step=jnp.inf, max_steps: int = 4096, t_eval=None,
-                       controller=PIController()) -> AdaptiveResult:
+                       controller=PIController(), differentiable: bool = False,
+                       checkpoints: int | None = None) -> AdaptiveResult:
     """Pure, jit/vmap-able integration with error-controlled (or reversible) step sizes.
 
     The same loop and controllers as :func:`~lobattodae.solve` without the input checks, for
@@ -576,6 +613,13 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
     ``max_steps`` step attempts (a static bound: it sizes the output); running out of them is
     the status ``Result.MAX_STEPS``, never a silent truncation. ``t_span = (t0, t1)`` with
     ``t1 < t0`` integrates backwards.
+
+    Forward-mode derivatives (``jax.jvp``, ``jacfwd``) always work. Reverse mode (``jax.grad``,
+    ``vjp``, ``jacrev``) needs ``differentiable=True``: the loop then runs as a fixed-length
+    scan of ``max_steps`` attempts (those after the end are skipped, but under ``vmap`` every
+    lane computes all of them, so keep ``max_steps`` close to what the run needs), and
+    ``checkpoints`` trades memory for recomputation as in :func:`integrate`. The derivatives
+    are those of the discrete adaptive map, step-size choices included.
 
     Returns
     -------
@@ -585,6 +629,10 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
         with ``t_eval`` (an array, sorted in the direction of integration) one row per time.
     """
     _check_count("max_steps", max_steps)
+    if checkpoints is not None:
+        _check_count("checkpoints", checkpoints)
+    if not isinstance(differentiable, bool):
+        raise LobattoDAEInputError(f"differentiable must be True or False; got {differentiable!r}.")
     if isinstance(controller, PIController):
         method = for_error_control(method)
     cast = functools.partial(jnp.asarray, dtype=jnp.float64)
@@ -592,5 +640,6 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
     options = ControlOptions(1, rtol, atol, first_step, max_step)
     t_eval = None if t_eval is None else cast(t_eval)
     return _integrate_adaptive_compiled(
-        problem, method, controller, max_steps, t0, t1, cast(q0), cast(p0), cast(lam0), args, options, t_eval
+        problem, method, controller, max_steps, differentiable, checkpoints, t0, t1, cast(q0), cast(p0), cast(lam0), args,
+        options, t_eval,
     )

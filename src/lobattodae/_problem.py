@@ -264,3 +264,28 @@ def consistent_lambda(problem, t, q, p, lam_guess, args=None, iterations=3):
     if iterations == 1:  # the common case inside the step loop: no loop construct
         return update(lam_guess)
     return jax.lax.fori_loop(0, iterations, lambda _, lam: update(lam), lam_guess)
+
+
+def projection_step(problem, t, q, p, args=None):
+    r"""One Gauss-Newton step of the projection onto ``{p : φ(t, q, p) = 0}``,
+
+        p ← p − D_pφᵀ (D_pφ D_pφᵀ)⁻¹ φ(t, q, p),
+
+    returning the new p and the correction (exact in one step for φ linear in p)."""
+    r = problem.phi(t, q, p, args)
+    jp = jax.jacfwd(lambda pp: problem.phi(t, q, pp, args))(p)
+    dp = jp.T @ small_solve(jp @ jp.T, r)
+    return p - dp, dp
+
+
+def project_momenta(problem, t, q, p, args=None, iterations=2):
+    r"""The least-squares projection of p onto the constraint ``φ(t, q, p) = 0`` (pure,
+    jit/vmap/grad-able): ``iterations`` steps of :func:`projection_step`.
+
+    One step is exact for every nonholonomic system (φ linear in p); the default second one
+    removes its round-off. With :func:`consistent_lambda` it completes initial values computed
+    from parameters, ``p0 = project_momenta(...)``, ``λ0 = consistent_lambda(...)``, so that a
+    loss can be differentiated from physical parameters to the final state.
+    """
+    t = jnp.asarray(t, jnp.result_type(p))
+    return jax.lax.fori_loop(0, iterations, lambda _, pp: projection_step(problem, t, q, pp, args)[0], jnp.asarray(p))

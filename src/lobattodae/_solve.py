@@ -444,6 +444,7 @@ def solve(
     Solution
     """
     check_float64()
+    _refuse_tracers(t_span=t_span, q0=q0, p0=p0, lam0=lam0, args=args, n_steps=n_steps, dt=dt, rtol=rtol, atol=atol)
     opt = _Options.check(
         method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output, events,
         save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume,
@@ -452,6 +453,20 @@ def solve(
     # during validation and compilation), so it never lands inside JAX or between updates.
     with _deferred_interrupts() as interrupted:
         return _run(problem, method, opt, q0, p0, lam0, args, throw, project_initial, progress, interrupted)
+
+
+def _refuse_tracers(**inputs) -> None:
+    """``solve`` runs Python between compiled chunks and returns NumPy: under ``jax.grad``,
+    ``jit`` or ``vmap`` its inputs are tracers, which it cannot use. Say so, and where to go."""
+    for name, value in inputs.items():
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(value)):
+            raise LobattoDAEInputError(
+                f"solve() was called with a traced {name} (inside jax.grad, jit, vmap or another JAX "
+                "transformation); it runs Python between compiled chunks and returns NumPy arrays, so it "
+                "cannot be transformed. Use the pure entry points instead: lobattodae.integrate (constant "
+                "steps) or lobattodae.integrate_adaptive(..., differentiable=True) (variable steps), with "
+                "lobattodae.consistent_lambda and lobattodae.project_momenta for initial values."
+            )
 
 
 def _padded_t_eval(opt: _Options):

@@ -27,7 +27,7 @@ from ._errors import (
     ShapeError,
     SingularConstraintError,
 )
-from ._problem import _HamiltonianMixin, _hidden_constraint_and_jacobian
+from ._problem import _HamiltonianMixin, _hidden_constraint_and_jacobian, projection_step
 
 __all__ = ["validate_initial_values", "check_float64", "check_args", "check_tolerance_attainable"]
 
@@ -770,9 +770,7 @@ def _project_momenta(problem, t0, q0, p0, args, tol):
     q = jnp.asarray(q0)
     eps = float(np.finfo(np.float64).eps)
     for _ in range(20):
-        r, jp = _phi_and_jacobian(problem, t0, q, p, args)
-        dp = jp.T @ jnp.linalg.solve(jp @ jp.T, r)
-        p = p - dp
+        p, dp = projection_step(problem, t0, q, p, args)
         if float(jnp.max(jnp.abs(dp))) <= 4 * eps * (1.0 + float(jnp.max(jnp.abs(p)))):
             break
     r, _ = _phi_and_jacobian(problem, t0, q, p, args)

@@ -1,0 +1,90 @@
+"""Cost of a gradient through the solver: ``jax.grad`` of a scalar of the final state over the
+forward solve alone, and the memory the backward pass keeps.
+
+For each (example, s): N constant steps of ``lobattodae.integrate`` from consistent initial
+values computed from parameters (``project_momenta``, ``consistent_lambda``); the loss is
+``Σ q_N²``, differentiated with respect to p0 (reverse mode). Times are the best of
+``--repeats`` after compilation, measured in the same process one after the other, and the
+ratio grad/forward is what to read. Memory is XLA's temporary buffer size of the compiled
+gradient (``memory_analysis().temp_size_in_bytes``), with every step kept and with
+``checkpoints=√N`` segments. Writes ``benchmarks/results/gradients.json``.
+
+    PYTHONPATH=src python benchmarks/gradients.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import time
+
+import jax
+import jax.numpy as jnp
+
+import lobattodae as L
+from lobattodae.examples import get_example
+
+CASES = (("falling-disk-general", 3, 0.01), ("falling-disk-general", 4, 0.02), ("sleigh", 3, 0.01), ("sleigh", 5, 0.05))
+
+
+def _best(fn, x, repeats):
+    jax.block_until_ready(fn(x))
+    best = math.inf
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn(x))
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def measure(name: str, stages: int, h: float, n_steps: int, repeats: int) -> dict:
+    ex = get_example(name)
+    method = L.LobattoIIIAIIIB(stages=stages)
+    q0 = jnp.asarray(ex.q0)
+
+    def loss(p, checkpoints=None):
+        p0 = L.project_momenta(ex.problem, 0.0, q0, p, ex.args)
+        lam0 = L.consistent_lambda(ex.problem, 0.0, q0, p0, jnp.asarray(ex.lam0), ex.args)
+        r = L.integrate(ex.problem, method, 0.0, h, n_steps, q0, p0, lam0, ex.args, checkpoints=checkpoints)
+        return jnp.sum(r.q[-1] ** 2)
+
+    p = jnp.asarray(ex.p0)
+    segments = max(1, int(round(math.sqrt(n_steps))))
+    forward = jax.jit(loss)
+    grad = jax.jit(jax.grad(loss))
+    grad_ck = jax.jit(jax.grad(lambda x: loss(x, segments)))
+    t_fwd = _best(forward, p, repeats)
+    t_grad = _best(grad, p, repeats)
+    t_ck = _best(grad_ck, p, repeats)
+    mem = grad.lower(p).compile().memory_analysis().temp_size_in_bytes
+    mem_ck = grad_ck.lower(p).compile().memory_analysis().temp_size_in_bytes
+    row = dict(example=name, stages=stages, h=h, n_steps=n_steps, forward_s=t_fwd, grad_s=t_grad,
+               grad_checkpointed_s=t_ck, segments=segments, ratio=t_grad / t_fwd, ratio_checkpointed=t_ck / t_fwd,
+               temp_bytes=mem, temp_bytes_checkpointed=mem_ck)
+    print(f"{name:22s} s={stages} N={n_steps:6d}  forward {t_fwd * 1e3:8.1f} ms  grad {t_grad * 1e3:8.1f} ms "
+          f"({t_grad / t_fwd:4.2f}x, {mem / n_steps:6.0f} B/step)  checkpoints={segments}: {t_ck * 1e3:8.1f} ms "
+          f"({t_ck / t_fwd:4.2f}x, {mem_ck / 1e6:6.2f} MB)", flush=True)
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="short runs (smoke test)")
+    ap.add_argument("--repeats", type=int, default=3)
+    ns = ap.parse_args()
+    n_steps = 200 if ns.quick else 2000
+    rows = [measure(name, s, h, n_steps, ns.repeats) for name, s, h in (CASES[:1] if ns.quick else CASES)]
+    out = dict(date=time.strftime("%Y-%m-%d %H:%M"), machine=platform.platform(), cpus=os.cpu_count(),
+               jax=jax.__version__, device=str(jax.devices()[0]), rows=rows)
+    if not ns.quick:
+        path = os.path.join(os.path.dirname(__file__), "results", "gradients.json")
+        with open(path, "w") as fh:
+            json.dump(out, fh, indent=1)
+        print("wrote", path)
+
+
+if __name__ == "__main__":
+    main()
