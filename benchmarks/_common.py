@@ -19,6 +19,7 @@ of the example problems, for the validation).
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import math
 import os
@@ -576,3 +577,13 @@ def jsonable(x):
     if isinstance(x, (np.bool_,)):
         return bool(x)
     return x
+
+
+def write_json(out: dict, path: str | None) -> None:
+    """Write ``out`` (through :func:`jsonable`) to ``path`` if one is given, and say where."""
+    if path is None:
+        return
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with open(path, "w") as fh:
+        json.dump(jsonable(out), fh, indent=1)
+    log(f"\nwrote {path}")

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import os
 import sys
 import time
@@ -179,12 +178,7 @@ def main() -> None:
                       f"| ‖φ‖ between {r['phi_between']:.1e}")
     out["wall_s"] = time.perf_counter() - start
     out["loadavg_end"] = C.loadavg()
-    path = a.json or (None if a.quick else os.path.join(RESULTS_DIR, "dense_output.json"))
-    if path is not None:
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        with open(path, "w") as fh:
-            json.dump(C.jsonable(out), fh, indent=1)
-        C.log(f"\nwrote {path}")
+    C.write_json(out, a.json or (None if a.quick else os.path.join(RESULTS_DIR, "dense_output.json")))
     C.log(f"({out['wall_s']:.0f} s)")
 
 

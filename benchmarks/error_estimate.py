@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import math
 import os
 import sys
@@ -252,12 +251,7 @@ def main() -> None:
                   f"{c['c_tol_for_unit_ratio']:.3g})")
     out["wall_s"] = time.perf_counter() - start
     out["loadavg_end"] = C.loadavg()
-    path = a.json or (None if a.quick else os.path.join(RESULTS_DIR, "error_estimate.json"))
-    if path is not None:
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        with open(path, "w") as fh:
-            json.dump(C.jsonable(out), fh, indent=1)
-        C.log(f"\nwrote {path}")
+    C.write_json(out, a.json or (None if a.quick else os.path.join(RESULTS_DIR, "error_estimate.json")))
     C.log(f"({out['wall_s']:.0f} s)")
 
 

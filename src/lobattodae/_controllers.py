@@ -216,7 +216,8 @@ class PIController(_TimeAndEnd):
         rtol' = c_tol · rtol^κ,  atol' = atol · rtol'/rtol,   κ = s / (2s - 2),
 
     so that ``h ∝ rtol'^(1/s) = rtol^(1/(2s-2))`` and the global error is proportional to
-    rtol. ``c_tol`` is calibrated on the examples (``docs/verification.md``).
+    rtol. With the default ``c_tol = 1`` the global error / rtol measured on the examples is
+    about 1.6, 1.0, 0.09, 0.015 for s = 2..5 (``docs/variable-steps.md``).
     """
 
     safety: float = 0.9
