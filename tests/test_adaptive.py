@@ -5,6 +5,7 @@ import pytest
 from scipy.optimize import brentq
 
 import lobattodae as L
+from lobattodae._controllers import C_TOL
 from lobattodae.examples import get_example
 
 
@@ -37,6 +38,32 @@ def test_global_error_is_proportional_to_rtol(sleigh, method):
     slope = np.polyfit(np.log10(rtols), np.log10(errors), 1)[0]
     assert 0.75 < slope < 1.25, (errors, slope)
     assert np.all(np.asarray(errors) < 10 * rtols), errors
+
+
+@pytest.mark.parametrize("s", [4, 5])
+def test_calibrated_tolerance_constant_centres_the_error_on_rtol(s):
+    """The per-s c_tol (C_TOL) brings error/rtol near 1 where c_tol = 1 gave about 0.1 (s = 4)
+    and 0.01 (s = 5) on the knife edge (benchmarks/error_estimate.py); the error scales like
+    c_tol^((2s-2)/s)."""
+    ex = get_example("knife-edge")
+    method = L.LobattoIIIAIIIB(stages=s)
+    ratio = {}
+    for c_tol in (None, 1.0):
+        sol = L.solve(ex.problem, method, (0.0, 10.0), ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8,
+                      controller=L.PIController(c_tol=c_tol), save_every="final")
+        q, p, _ = ex.exact(10.0)
+        ratio[c_tol] = max(np.abs(sol.q[-1] - q).max(), np.abs(sol.p[-1] - p).max()) / 1e-8
+    assert 0.2 < ratio[None] < 5.0, ratio
+    assert ratio[1.0] < 0.2 * ratio[None], ratio
+    assert L.PIController().tolerance_constant(s) == C_TOL[s] and L.PIController().tolerance_constant(9) == C_TOL[5]
+
+
+@pytest.mark.parametrize("field, value", [("safety", 0.0), ("safety", 1.5), ("fac_min", 1.0), ("fac_max", 0.9),
+                                          ("beta1", 0.0), ("beta2", -0.1), ("hysteresis", 0.5), ("c_tol", 0.0),
+                                          ("c_tol", float("nan")), ("fac_max", "5")])
+def test_pi_controller_validates_its_fields(field, value):
+    with pytest.raises(ValueError, match=f"PIController: {field} must be"):
+        L.PIController(**{field: value})
 
 
 def test_adaptive_steps_need_fewer_steps_than_constant_ones_for_the_same_error(sleigh, method):
@@ -139,7 +166,18 @@ def test_non_terminal_events_with_direction(sleigh, method):
         assert abs(p_ev[1] - 1.1) < 1e-8
 
 
-def test_adaptive_resume_is_bitwise_identical(sleigh, method, tmp_path):
+@pytest.fixture
+def ctrl_c_enabled():
+    """Ctrl-C handled as in a terminal, also when pytest runs as a background job (which
+    ignores SIGINT, and solve then leaves it ignored)."""
+    import signal
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_adaptive_resume_is_bitwise_identical(sleigh, method, tmp_path, ctrl_c_enabled):
     ref = _solve(sleigh, method, rtol=1e-9, atol=1e-9, chunk_size=16, t_span=(0.0, 20.0))
 
     class Stop:

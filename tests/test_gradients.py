@@ -126,6 +126,34 @@ def test_adaptive_reverse_mode_matches_forward_mode_and_finite_differences():
     np.testing.assert_allclose(rows_reverse, rows_forward, rtol=1e-10, atol=1e-12)
 
 
+def test_reversible_step_size_control_is_differentiable():
+    """ReversibleStepSize's steps are not differentiated either (through its density they gave
+    NaN): reverse and forward mode agree, and both agree with central differences."""
+    ex = get_example("sleigh")
+    method = L.LobattoIIIAIIIB(stages=4)
+
+    def run(theta, differentiable=True):
+        p0 = theta[0] * jnp.asarray(ex.p0)
+        lam0 = L.consistent_lambda(ex.problem, 0.0, jnp.asarray(ex.q0), p0, jnp.asarray(ex.lam0), ex.args)
+        r = L.integrate_adaptive(ex.problem, method, (0.0, theta[1]), ex.q0, p0, lam0, ex.args, rtol=1e-8,
+                                 atol=1e-10, first_step=0.05, max_steps=MAX_STEPS_ADAPTIVE,
+                                 differentiable=differentiable, controller=L.ReversibleStepSize())
+        return jnp.concatenate([r.q[r.n_rows - 1], r.p[r.n_rows - 1]]), r.status
+
+    theta = jnp.array([1.0, 1.0])
+    assert int(run(theta)[1]) == L.Result.SUCCESSFUL
+
+    def final(x, differentiable=True):
+        return run(x, differentiable)[0]
+
+    reverse = np.asarray(jax.jacrev(final)(theta))
+    forward = np.asarray(jax.jacfwd(lambda x: final(x, differentiable=False))(theta))
+    scale = np.max(np.abs(forward))
+    assert np.all(np.isfinite(reverse)) and np.max(np.abs(forward - reverse)) <= 1e-10 * scale
+    fd = _central_differences(lambda x: final(x, differentiable=False), theta, 1e-6)
+    assert np.max(np.abs(forward - fd)) <= 1e-6 * scale
+
+
 def test_differentiable_adaptive_run_gives_the_same_solution():
     ex = get_example("sleigh")
     method = L.LobattoIIIAIIIB(stages=4)
