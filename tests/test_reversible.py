@@ -296,3 +296,34 @@ def test_reversibility_for_other_stage_numbers(contact, stages):
     assert bwd["t"][-1] == 0.0
     for key, start in (("q", contact.q0), ("p", contact.p0), ("lam", contact.lam0)):
         np.testing.assert_allclose(bwd[key][-1], start, rtol=0, atol=1e-11)
+
+
+def _shrinking(t, q, p, lam, f, g, args):  # log σ = -3t: G = -3 exactly, ρ runs towards 0
+    return jnp.exp(-3.0 * t)
+
+
+def test_stats_count_the_clamped_steps(contact):
+    """``stats["n_clamped"]`` reports the steps where the MAX_DENSITY_CHANGE safeguard acted:
+    with σ = exp(-3t) the rule ρ ← ρ + εG would turn ρ negative, and the count equals a replay
+    of the rule (G = -3 exactly, ε = first_step·σ(0)); a reversible run has none, other
+    step-size rules report None."""
+    ex = contact
+    eps, t_end = 0.1, 3.0
+    sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, t_end), ex.q0, ex.p0, args=ex.args,
+                  controller=ReversibleStepSize(_shrinking), first_step=eps)
+    # the replay: ρ_{1/2} = σ0 + (ε/2)G, h = ε/ρ (the last step ends on t1), ρ ← clip(ρ + εG, ρ/4, 4ρ)
+    rho, t, steps, clamped = 1.0 - 0.5 * eps * 3.0, 0.0, [], 0
+    while t < t_end:
+        h = min(eps / rho, t_end - t)
+        steps.append(h)
+        t += h
+        new = float(np.clip(rho - eps * 3.0, rho / 4, 4 * rho))
+        clamped += new != rho - eps * 3.0
+        rho = new
+    np.testing.assert_allclose(np.diff(sol.t), steps, rtol=1e-12)
+    assert clamped >= 2 and sol.stats["n_clamped"] == clamped
+    normal = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 20.0), ex.q0, ex.p0, args=ex.args,
+                     controller=ReversibleStepSize(), first_step=FIRST_STEP)
+    assert normal.stats["n_clamped"] == 0
+    assert L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 1.0), ex.q0, ex.p0, args=ex.args,
+                   rtol=1e-6).stats["n_clamped"] is None

@@ -2,15 +2,48 @@
 
 A checkpoint holds everything a run needs to continue exactly where it stopped: who the run
 is (``meta``), how far it got (``counters``), the loop state (``state/...``) and the output
-rows computed so far (``rows/...``).  The private loop carry is *not* the file format: the
-state is stored under readable names derived from its NamedTuple field names, and the layout
-of the file is written down here and guarded by :data:`VERSION` and :data:`STATE_FINGERPRINT`.
+rows computed so far.  The private loop carry is *not* the file format: the state is stored
+under readable names derived from its NamedTuple field names, and the layout of the files is
+written down here and guarded by :data:`VERSION` and :data:`STATE_FINGERPRINT`.
 
-File schema (version 3)
+Two parts: a small main file and append-only row segments (version 4)
+----------------------------------------------------------------------
+A long run is checkpointed many times while its rows keep growing.  Version 3 rewrote all
+rows at every save, O(saves × rows) bytes in all (3.6 GiB for 10⁶ steps saved every 10⁴,
+terabytes for 10⁸).  Version 4 writes each row once:
+
+* the **main file** ``path`` holds the meta, the counters, the loop state and a short
+  description of the rows (``segments``); it is rewritten, atomically, at every save, and its
+  rename is the commit point of the save;
+* the rows live in **segment files** in the sidecar directory ``<path>.rows/``
+  (:func:`rows_directory`): each save that has new rows writes one segment holding only
+  those, and a segment is never changed after it is written.
+
+Bytes written are O(rows) + O(saves × state), and each save costs O(new rows + state).
+A save writes its segment first (atomically, like the main file), then the main file; a crash
+in between leaves a segment that no main file lists, which loading ignores, and which the
+first save of the next writer (the resumed run) removes, or replaces if it saves the same
+rows again.  Alternatives considered: one rows file appended in place, with the
+committed length in the main file (a torn append must be truncated on resume, and one
+damaged append poisons everything after it); HDF5 or zarr (new dependencies, and neither
+gives this commit point by itself).
+
+Segments are chained to their main file by SHA-256, so nothing else can be mixed in:
+``d₋₁ = sha256("lobattodae-checkpoint-rows:" + run)`` with ``run`` 32 random hex digits
+drawn by the first save of a fresh checkpoint, and ``d_i = sha256(d_{i-1}, i, the fields of
+segment i: name, dtype, shape and C-order bytes)``.  Segment ``i`` stores ``d_{i-1}`` and is
+named after ``d_i``; the main file stores the last digest.  :func:`load` walks the chain from
+the main file back to ``d₋₁``, recomputing every digest, so a segment that is missing,
+truncated, damaged, left over from an earlier run or a crashed save, or belongs to another
+checkpoint is reported, never read.  Because names follow contents, a save never overwrites a
+listed segment with different rows, and a fresh run started over an old checkpoint (a new
+``run``) leaves the old checkpoint intact until its own main file is committed.
+
+File schema (version 4)
 -----------------------
-An uncompressed ``.npz`` archive (:func:`numpy.savez`, every member stored, no pickled
-objects: it loads with ``allow_pickle=False``).  Its entries, each a ``.npy`` member named
-``<key>.npy``:
+Every file is an uncompressed ``.npz`` archive (:func:`numpy.savez`, every member stored, no
+pickled objects: it loads with ``allow_pickle=False``) of ``.npy`` members named
+``<key>.npy``.  The **main file** ``path`` holds exactly:
 
 ``__format__``    0-d unicode string, always :data:`FORMAT` (``"lobattodae-checkpoint"``).
 ``__version__``   0-d integer, :data:`VERSION` of the writer.
@@ -20,45 +53,67 @@ objects: it loads with ``allow_pickle=False``).  Its entries, each a ``.npy`` me
                   accepted only if it equals the caller's dict (after a JSON round trip).
 ``counters``      0-d unicode string: JSON of a dict ``str -> int | float`` (steps done,
                   recoveries, resets, ...).
+``segments``      0-d unicode string: JSON of ``{"run": run, "count": k, "head": d_{k-1},
+                  "fields": [{"name", "dtype", "shape", "rows"}, ...]}``: the committed
+                  segments ``0 .. k-1`` (``head`` is ``d₋₁`` when k = 0) and, per row field in
+                  order, its dtype (:attr:`numpy.dtype.str`, numbers and booleans only), its
+                  shape without the leading row axis and its number of rows so far.
 ``state/<name>``  one array per leaf of the loop-state pytree, ``<name>`` the dotted path of
                   NamedTuple field names (``"y.q"``, ``"stepper.jacobian.inverse"``); see
                   :func:`state_fields`.  Shapes must match the resuming run's state exactly;
                   dtypes are cast (safely only) to the state's dtypes.
-``rows/<name>``   one array per recorded output quantity, the computed prefix of the run.
 
-Nothing else may be in the archive.
+**Segment** ``i`` is the file ``<path>.rows/<i, 6 digits or more>-<first 16 hex digits of
+d_i>.npz`` and holds exactly ``__format__`` (:data:`ROWS_FORMAT`), ``__version__``,
+``segment`` (JSON ``{"run": run, "index": i, "previous": d_{i-1}}``) and ``rows/<name>`` for
+every field (its rows from this save, first axis; possibly none).  The rows of a field are
+the concatenation of its arrays over segments ``0 .. k-1``.  Nothing else may be in either
+kind of file; other files in the directory are not part of the checkpoint.
+
+To move or copy a checkpoint, move or copy ``path`` and ``<path>.rows/`` together.
 
 Version policy
 --------------
 Bump :data:`VERSION` whenever the state pytree changes (a field added, removed, renamed,
-or a dtype or rank changed) or the meaning of any entry changes, and record the new
-:func:`schema_fingerprint` of the state in :data:`STATE_FINGERPRINT`; a test compares the
-two, so changing the state without bumping the version fails.  Files of any other version,
-older or newer, are never migrated or half-read: :func:`load` raises :class:`CheckpointError`
-naming both versions and telling the user to delete the file or restart without resume.
-(Version 1 is the ad-hoc ``leaf_{i}`` layout of lobattodae 0.1; it is recognised as such.)
+or a dtype or rank changed) or the meaning or layout of any entry or file changes, and record
+the new :func:`schema_fingerprint` of the state in :data:`STATE_FINGERPRINT`; a test compares
+the two, so changing the state without bumping the version fails.  Files of any other
+version, older or newer, are never migrated or half-read: :func:`load` raises
+:class:`CheckpointError` naming both versions and telling the user to delete the file or
+restart without resume.  (Version 1 is the ad-hoc ``leaf_{i}`` layout of lobattodae 0.1; it
+is recognised as such.  Version 3 is the single-file layout with ``rows/<name>`` entries in
+the main file, rewritten whole at every save.)
 
 Atomic writes
 -------------
-:func:`save` writes to a fresh temporary file with a unique name in the target's directory
-(created exclusively, so no existing file or symlink is ever followed or overwritten), flushes
-and fsyncs it, then renames it over the target with :func:`os.replace`.  A reader therefore
-sees either the previous complete checkpoint or the new complete one, never a partial file,
-even if the process is killed mid-write; on any error (including ``KeyboardInterrupt``) the
-temporary file is removed and the previous checkpoint is left as it was.  Concurrent saves to
-the same path do not interfere: the last rename wins.
+Every file (segment or main) is written to a fresh temporary file with a unique name in its
+target's directory (created exclusively, so no existing file or symlink is ever followed or
+overwritten), flushed and fsynced, then renamed over the target with :func:`os.replace`, and
+the directory is fsynced; the segment is durable before the main file that lists it is
+renamed.  A reader therefore sees either the previous complete checkpoint or the new
+complete one, never a partial file, even if the process is killed mid-write; on any error
+(including ``KeyboardInterrupt``) the temporary file is removed and the previous checkpoint
+is left usable.  Saves to one path hold an exclusive lock on its rows directory
+(:func:`fcntl.flock`, where the platform has it), so concurrent saves do not interfere: the
+last commit wins, with its segments intact.  After its commit, the first save of each writer
+(``previous`` None or from :func:`load`) removes the segment files the committed main file
+does not list and temporary files of interrupted saves.  Two runs *appending* to one
+checkpoint at the same time are not supported (a fresh save removes the other's segments;
+loading then reports the checkpoint as corrupt, it never mixes rows).
 
 Errors
 ------
-Every problem with a file handed to :func:`load` (unreadable, truncated, damaged, not an
-archive, not ours, wrong version, another run, wrong shapes) raises :class:`CheckpointError`
-(a :class:`~lobattodae.LobattoDAEInputError`, hence a :class:`ValueError`) with one message
-that names the file and says what to do.  A missing file is not an error of :func:`load`'s
+Every problem with a checkpoint handed to :func:`load` (unreadable, truncated, damaged, not an
+archive, not ours, wrong version, another run, wrong shapes, a segment missing, damaged or
+not part of the chain) raises :class:`CheckpointError` (a
+:class:`~lobattodae.LobattoDAEInputError`, hence a :class:`ValueError`) with one message that
+names the file and says what to do.  A missing main file is not an error of :func:`load`'s
 contract: ask :func:`exists` first and decide.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -68,14 +123,16 @@ import json
 import math
 import numbers
 import os
+import re
+import secrets
 import stat
 import struct
 import tempfile
 import types
 import zipfile
 import zlib
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Iterator, Mapping, Sequence
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -84,22 +141,33 @@ import numpy as np
 
 from ._errors import LobattoDAEInputError
 
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not on Windows: saves are not locked there
+    fcntl = None
+
 __all__ = [
     "FORMAT",
+    "ROWS_FORMAT",
     "VERSION",
     "STATE_FINGERPRINT",
     "CheckpointError",
+    "Segments",
+    "Checkpoint",
     "state_fields",
     "schema_fingerprint",
     "save",
     "load",
     "exists",
+    "rows_directory",
     "fingerprint_arrays",
     "fingerprint_callable",
 ]
 
 FORMAT = "lobattodae-checkpoint"
-VERSION = 3
+#: ``__format__`` of a row segment file.
+ROWS_FORMAT = "lobattodae-checkpoint-rows"
+VERSION = 4
 
 # schema_fingerprint(<the loop's State template>) for the current VERSION.  The loop records
 # it here once the State exists; a test asserts the two agree, so that changing the State
@@ -108,8 +176,20 @@ STATE_FINGERPRINT: str | None = "9c12e42f9122523c"  # schema_fingerprint(lobatto
 
 _STATE = "state/"
 _ROWS = "rows/"
-_HEADER_KEYS = ("__format__", "__version__", "meta", "counters")
+_SEGMENTS = "segments"
+_HEADER_KEYS = ("__format__", "__version__", "meta", "counters", _SEGMENTS)
+_SEGMENT_KEYS = ("__format__", "__version__", "segment")
 _MAX_NPY_HEADER = 100_000
+_ROWS_SUFFIX = ".rows"
+#: A segment file's name: its index and the first 16 hex digits of its chain digest.
+_SEGMENT_NAME = re.compile(r"[0-9]{6,}-[0-9a-f]{16}\.npz")
+_RUN = re.compile(r"[0-9a-f]{32}")
+_DIGEST = re.compile(r"[0-9a-f]{64}")
+#: Row fields hold numbers: booleans, integers, floats, complex numbers.
+_ROW_KINDS = "biufc"
+#: Sanity bounds on what a file may claim: the size of an axis, the rank of a row field.
+_MAX_DIM = 2**40
+_MAX_RANK = 31
 
 _RESTART = "delete it or restart without resume"
 
@@ -122,6 +202,49 @@ class CheckpointError(LobattoDAEInputError):
     path : str
         The checkpoint file, as given.
     """
+
+
+@dataclasses.dataclass(frozen=True)
+class Segments:
+    """The rows a checkpoint on disk holds, as :func:`save` and :func:`load` return them: pass
+    it to the next :func:`save` of the same path, which then writes only the new rows.
+
+    Attributes
+    ----------
+    run : str
+        32 hex digits drawn by the first save of a fresh checkpoint (the seed of the chain).
+    files : tuple of str
+        The committed segment files in :func:`rows_directory`, oldest first.
+    head : str
+        The chain digest after the last committed segment (the seed when there is none).
+    fields : tuple of (str, str, tuple of int)
+        ``(name, dtype.str, shape without the row axis)`` of each row field, in order.
+    counts : tuple of int
+        The rows of each field so far.
+    tidy : bool
+        The writer that made it has removed the leftovers in the rows directory.
+    """
+
+    run: str
+    files: tuple[str, ...]
+    head: str
+    fields: tuple[tuple[str, str, tuple[int, ...]], ...]
+    counts: tuple[int, ...]
+    tidy: bool = False
+
+
+class Checkpoint(NamedTuple):
+    """What :func:`load` returns."""
+
+    counters: dict  # str -> int | float
+    state: Any  # the state pytree, JAX arrays
+    rows: dict  # field name -> all its rows (numpy)
+    segments: Segments  # for the next save of the resumed run
+
+
+def rows_directory(path: str | os.PathLike) -> str:
+    """The sidecar directory of the checkpoint ``path`` that holds its row segments: ``<path>.rows``."""
+    return os.fsdecode(os.fspath(path)) + _ROWS_SUFFIX
 
 
 # --------------------------------------------------------------------------------------------
@@ -185,6 +308,30 @@ def schema_fingerprint(template: Any) -> str:
 
 
 # --------------------------------------------------------------------------------------------
+# the chain of row segments
+
+
+def _seed(run: str) -> str:
+    """``d₋₁``: the chain digest before the first segment of the run ``run``."""
+    return hashlib.sha256(f"{ROWS_FORMAT}:{run}".encode()).hexdigest()
+
+
+def _chain(previous: str, index: int, fields: Sequence[tuple[str, str, tuple[int, ...]]],
+           arrays: Mapping[str, np.ndarray]) -> str:
+    """``d_i`` from ``d_{i-1}``, the index and the rows of segment ``i`` (C-order bytes)."""
+    h = hashlib.sha256(f"{previous}:{index}".encode())
+    for name, _, _ in fields:
+        arr = np.ascontiguousarray(arrays[name])
+        h.update(f"|{name}|{arr.dtype.str}|{arr.shape}|".encode())
+        h.update(arr.data)
+    return h.hexdigest()
+
+
+def _segment_name(index: int, digest: str) -> str:
+    return f"{index:06d}-{digest[:16]}.npz"
+
+
+# --------------------------------------------------------------------------------------------
 # writing
 
 
@@ -212,6 +359,44 @@ def _plain_array(value: Any, what: str) -> np.ndarray:
     return arr
 
 
+def _describe_fields(fields: Sequence[tuple[str, str, tuple[int, ...]]]) -> str:
+    return ", ".join(f"{name} {np.dtype(dtype).name} (k{''.join(f', {d}' for d in shape)})"
+                     for name, dtype, shape in fields)
+
+
+def _check_rows(rows: Mapping[str, Any], previous: Segments | None):
+    """The new rows as arrays, and the fields they continue (checked against ``previous``)."""
+    if not isinstance(rows, Mapping):
+        raise TypeError(f"checkpoint rows must be a dict of arrays; got {type(rows).__name__}.")
+    new: dict[str, np.ndarray] = {}
+    for name, value in rows.items():
+        if not isinstance(name, str) or not name:
+            raise TypeError(f"checkpoint row names must be non-empty strings; got {name!r}.")
+        arr = _plain_array(value, _ROWS + name)
+        if arr.dtype.kind not in _ROW_KINDS:
+            raise TypeError(f"checkpoint entry {_ROWS + name!r} is not a numeric array (dtype {arr.dtype}); "
+                            "rows hold numbers and booleans.")
+        if arr.ndim == 0:
+            raise TypeError(f"checkpoint entry {_ROWS + name!r} is a 0-d array; rows need a first axis that "
+                            "counts them.")
+        new[name] = arr
+    fields = tuple((name, arr.dtype.str, tuple(int(d) for d in arr.shape[1:])) for name, arr in new.items())
+    if previous is not None:
+        if sorted(fields) != sorted(previous.fields):
+            raise TypeError("checkpoint rows must continue the checkpoint's fields "
+                            f"({_describe_fields(previous.fields)}); got {_describe_fields(fields)}.")
+        fields = previous.fields
+    return new, fields
+
+
+def _segments_json(run: str, count: int, head: str, fields, counts) -> str:
+    return json.dumps({
+        "run": run, "count": count, "head": head,
+        "fields": [{"name": name, "dtype": dtype, "shape": list(shape), "rows": rows}
+                   for (name, dtype, shape), rows in zip(fields, counts)],
+    })
+
+
 def _default_file_mode() -> int | None:
     """``0o666 & ~umask`` as for a file created by ``open``, read without changing the umask."""
     try:
@@ -231,13 +416,23 @@ def save(
     counters: Mapping[str, Any],
     state: Any,
     rows: Mapping[str, Any],
-) -> None:
-    """Write a checkpoint atomically (see the module docstring for the format and guarantee).
+    previous: Segments | None = None,
+) -> Segments:
+    """Commit a checkpoint atomically: the new rows as one segment, then the main file (see the
+    module docstring for the format and the guarantees).
 
     ``meta`` must be JSON-serialisable; ``counters`` maps names to ints or floats; ``state`` is
     a pytree of arrays (JAX or numpy; converted with :func:`numpy.asarray`); ``rows`` maps
-    names to arrays.  Bad arguments raise :class:`TypeError` before anything is written;
-    I/O errors (:class:`OSError`) propagate, leaving any previous checkpoint untouched.
+    field names to arrays of numbers whose first axis counts rows.  With ``previous=None`` they
+    are all the rows of a fresh checkpoint, which replaces whatever is at ``path`` (its
+    segments are removed once the new main file is committed).  Otherwise ``previous`` is what
+    the last :func:`save` or :func:`load` of this path returned, and ``rows`` holds only the
+    rows produced since, field by field with the same names, dtypes and trailing shapes; they
+    are appended.  Without new rows no segment is written.
+
+    Returns the :class:`Segments` to pass to the next save.  Bad arguments raise
+    :class:`TypeError` before anything is written; I/O errors (:class:`OSError`) propagate,
+    leaving the previous checkpoint usable.
     """
     target = os.fspath(path)
     payload: dict[str, np.ndarray] = {
@@ -249,11 +444,45 @@ def save(
     named, _ = _flatten_named(state)
     for name, leaf in named:
         payload[_STATE + name] = _plain_array(leaf, _STATE + name)
-    for name, value in rows.items():
-        if not isinstance(name, str) or not name:
-            raise TypeError(f"checkpoint row names must be non-empty strings; got {name!r}.")
-        payload[_ROWS + name] = _plain_array(value, _ROWS + name)
+    new, fields = _check_rows(rows, previous)
+    if previous is None:
+        run = secrets.token_hex(16)
+        files, head, counts = (), _seed(run), (0,) * len(fields)
+    else:
+        run, files, head, counts = previous.run, previous.files, previous.head, previous.counts
+    segment = None
+    if any(len(arr) for arr in new.values()):
+        index = len(files)
+        segment_payload = {
+            "__format__": np.asarray(ROWS_FORMAT),
+            "__version__": np.asarray(VERSION, dtype=np.int64),
+            "segment": np.asarray(json.dumps({"run": run, "index": index, "previous": head}, sort_keys=True)),
+            **{_ROWS + name: new[name] for name, _, _ in fields},
+        }
+        head = _chain(head, index, fields, new)
+        segment = _segment_name(index, head)
+        files = files + (segment,)
+    counts = tuple(count + len(new[name]) for count, (name, _, _) in zip(counts, fields))
+    payload[_SEGMENTS] = np.asarray(_segments_json(run, len(files), head, fields, counts))
 
+    directory = rows_directory(target)
+    try:
+        os.mkdir(directory)  # not makedirs: a missing directory of ``path`` is the caller's error
+    except FileExistsError:
+        pass
+    with _locked(directory):
+        if segment is not None:
+            _write_atomic(os.path.join(directory, segment), segment_payload)
+            _fsync_directory(directory)
+        _write_atomic(target, payload)
+        _fsync_directory(os.path.dirname(target) or os.curdir)
+        if previous is None or not previous.tidy:
+            _remove_leftovers(directory, files)
+    return Segments(run, files, head, fields, counts, tidy=True)
+
+
+def _write_atomic(target: str, payload: Mapping[str, np.ndarray]) -> None:
+    """Write ``payload`` as an ``.npz`` to a fresh temporary file, fsync it, rename it over ``target``."""
     directory, base = os.path.split(target)
     fd, tmp = tempfile.mkstemp(prefix=f".{base}.", suffix=".tmp", dir=directory or None)
     try:
@@ -271,7 +500,46 @@ def save(
         except OSError:
             pass
         raise
-    _fsync_directory(directory or os.curdir)
+
+
+@contextlib.contextmanager
+def _locked(directory: str) -> Iterator[None]:
+    """Hold an exclusive advisory lock on ``directory`` (where :mod:`fcntl` exists; best effort)."""
+    fd = None
+    if fcntl is not None:
+        try:
+            fd = os.open(directory, os.O_RDONLY)
+        except OSError:
+            fd = None
+    try:
+        if fd is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            except OSError:
+                pass
+        yield
+    finally:
+        if fd is not None:
+            os.close(fd)  # releases the lock
+
+
+def _remove_leftovers(directory: str, keep: Sequence[str]) -> None:
+    """Remove the segment files in ``directory`` that are not in ``keep`` and the temporary
+    files of interrupted saves (best effort: a file that cannot be removed stays, unread)."""
+    keep = set(keep)
+    try:
+        with os.scandir(directory) as entries:
+            names = [e.name for e in entries if e.is_file(follow_symlinks=False)]
+    except OSError:
+        return
+    for name in names:
+        stale = _SEGMENT_NAME.fullmatch(name) is not None and name not in keep
+        temporary = name.startswith(".") and name.endswith(".tmp")
+        if stale or temporary:
+            try:
+                os.unlink(os.path.join(directory, name))
+            except OSError:
+                pass
 
 
 def _fsync_directory(directory: str) -> None:
@@ -302,15 +570,17 @@ def exists(path: str | os.PathLike) -> bool:
 
 
 class _Reader:
-    """Reads and checks one ``.npy`` member at a time; every failure is a CheckpointError."""
+    """Reads and checks one ``.npy`` member at a time; every failure is a CheckpointError
+    about the checkpoint ``path`` (``part``: which of its files, when not the main one)."""
 
     # Everything parsing a damaged or foreign file may raise.
     _ERRORS = (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, ValueError, KeyError,
                IndexError, TypeError, OverflowError, struct.error, zlib.error, NotImplementedError,
                RuntimeError, SyntaxError)
 
-    def __init__(self, path: str, zf: zipfile.ZipFile, file_size: int):
+    def __init__(self, path: str, zf: zipfile.ZipFile, file_size: int, part: str | None = None):
         self.path = path
+        self.part = part
         self.zf = zf
         self.members: dict[str, zipfile.ZipInfo] = {}
         for info in zf.infolist():
@@ -326,7 +596,7 @@ class _Reader:
             self.members[key] = info
 
     def corrupt(self, reason: str) -> CheckpointError:
-        return _error(self.path, _corrupt_message(self.path, reason))
+        return _error(self.path, _corrupt_message(self.path, f"{self.part}: {reason}" if self.part else reason))
 
     def has(self, key: str) -> bool:
         return key in self.members
@@ -441,57 +711,131 @@ def _legacy_version(r: _Reader) -> int | None:
     return None
 
 
+@contextlib.contextmanager
+def _open_archive(target: str, shown: str, part: str | None = None) -> Iterator[_Reader]:
+    """A :class:`_Reader` of the archive ``target``: the main file (``part`` None) or one of
+    its segments (``part`` names it in messages)."""
+
+    def corrupt(main_reason: str, part_reason: str) -> CheckpointError:
+        return _error(shown, _corrupt_message(shown, f"{part} {part_reason}" if part else main_reason))
+
+    def unreadable(exc: OSError) -> CheckpointError:
+        if part:
+            return corrupt("", f"cannot be read ({_describe(exc)})")
+        return _error(shown,
+                      f"checkpoint '{shown}' cannot be read ({_describe(exc)}); fix its permissions, {_RESTART}.")
+
+    try:
+        info = os.stat(target)
+    except FileNotFoundError as exc:
+        if part:
+            raise corrupt("", "is missing") from exc
+        if os.path.islink(target):
+            raise corrupt("it is a symbolic link to a missing file", "") from exc
+        raise _error(shown, f"checkpoint '{shown}' does not exist; check exists() before load().") from exc
+    except OSError as exc:
+        raise unreadable(exc) from exc
+    if stat.S_ISDIR(info.st_mode):
+        raise corrupt("it is a directory", "is a directory")
+    if not stat.S_ISREG(info.st_mode):
+        raise corrupt("it is not a regular file", "is not a regular file")
+    if info.st_size == 0:
+        raise corrupt("empty file", "is an empty file")
+    try:
+        fh = open(target, "rb")
+    except OSError as exc:
+        raise unreadable(exc) from exc
+    with fh:
+        try:
+            zf = zipfile.ZipFile(fh)
+        except _Reader._ERRORS as exc:
+            reason = f"not a readable .npz archive: {_describe(exc)}"
+            raise corrupt(reason, f"is {reason}") from exc
+        with zf:
+            yield _Reader(shown, zf, info.st_size, part)
+
+
 def load(
     path: str | os.PathLike,
     *,
     meta: Mapping[str, Any],
     state_template: Any,
     row_names: Sequence[str],
-) -> tuple[dict[str, int | float], Any, dict[str, np.ndarray]]:
+) -> Checkpoint:
     """Read a checkpoint written by :func:`save` for the run identified by ``meta``.
 
-    Returns ``(counters, state, rows)``: ``state`` has the pytree structure of
-    ``state_template`` with JAX arrays of the template leaves' dtypes and exactly their
-    shapes; ``rows`` maps each of ``row_names`` to the stored numpy array.
+    Returns a :class:`Checkpoint` ``(counters, state, rows, segments)``: ``state`` has the
+    pytree structure of ``state_template`` with JAX arrays of the template leaves' dtypes and
+    exactly their shapes; ``rows`` maps each of ``row_names`` to all its rows (numpy, read from
+    the committed segments); ``segments`` is for the next :func:`save` of the resumed run.
 
     Raises
     ------
     CheckpointError
-        For every problem with the file: it cannot be read, is damaged or truncated, is not a
-        lobattodae checkpoint, has another format version, belongs to another run (``meta``
-        differs), or its state does not fit ``state_template``.  Also when nothing is at
-        ``path``; call :func:`exists` first to tell that case apart.
+        For every problem with the checkpoint: a file cannot be read, is damaged or truncated,
+        is not a lobattodae checkpoint, has another format version, belongs to another run
+        (``meta`` differs), its state does not fit ``state_template``, its fields are not
+        ``row_names``, or a row segment is missing, damaged or not part of its chain.  Also
+        when nothing is at ``path``; call :func:`exists` first to tell that case apart.
     """
     shown = _display(path)
     target = os.fspath(path)
+    with _open_archive(target, shown) as r:
+        counters, state, stored = _load_from(r, meta, state_template, row_names)
+    rows, segments = _load_rows(target, shown, stored, row_names)
+    return Checkpoint(counters, state, rows, segments)
+
+
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= _MAX_DIM
+
+
+def _row_dtype(text: Any) -> np.dtype | None:
+    """The dtype a ``segments`` field names, if it is one that rows may have."""
+    if not isinstance(text, str):
+        return None
     try:
-        info = os.stat(target)
-    except FileNotFoundError as exc:
-        if os.path.islink(target):
-            raise _error(shown, _corrupt_message(shown, "it is a symbolic link to a missing file")) from exc
-        raise _error(shown, f"checkpoint '{shown}' does not exist; check exists() before load().") from exc
-    except OSError as exc:
-        raise _error(shown, f"checkpoint '{shown}' cannot be read ({_describe(exc)}); "
-                            f"fix its permissions, {_RESTART}.") from exc
-    if stat.S_ISDIR(info.st_mode):
-        raise _error(shown, _corrupt_message(shown, "it is a directory"))
-    if not stat.S_ISREG(info.st_mode):
-        raise _error(shown, _corrupt_message(shown, "it is not a regular file"))
-    if info.st_size == 0:
-        raise _error(shown, _corrupt_message(shown, "empty file"))
-    try:
-        fh = open(target, "rb")
-    except OSError as exc:
-        raise _error(shown, f"checkpoint '{shown}' cannot be read ({_describe(exc)}); "
-                            f"fix its permissions, {_RESTART}.") from exc
-    with fh:
-        try:
-            zf = zipfile.ZipFile(fh)
-        except _Reader._ERRORS as exc:
-            reason = "not a readable .npz archive"
-            raise _error(shown, _corrupt_message(shown, f"{reason}: {_describe(exc)}")) from exc
-        with zf:
-            return _load_from(_Reader(shown, zf, info.st_size), meta, state_template, row_names)
+        dtype = np.dtype(text)
+    except _Reader._ERRORS:
+        return None
+    if dtype.kind not in _ROW_KINDS or dtype.shape != () or dtype.fields is not None or dtype.str != text:
+        return None
+    return dtype
+
+
+def _segments_entry(r: _Reader):
+    """``(run, count, head, fields, counts)`` from the main file's ``segments`` entry."""
+    value = r.json_dict(_SEGMENTS)
+
+    def malformed(what: str) -> CheckpointError:
+        return r.corrupt(f"entry {_SEGMENTS!r} is malformed ({what})")
+
+    run, count, head, fields = (value.get(k) for k in ("run", "count", "head", "fields"))
+    if not (isinstance(run, str) and _RUN.fullmatch(run)):
+        raise malformed("run")
+    if not _is_count(count):
+        raise malformed("count")
+    if not (isinstance(head, str) and _DIGEST.fullmatch(head)) or (count == 0 and head != _seed(run)):
+        raise malformed("head")
+    if not isinstance(fields, list):
+        raise malformed("fields")
+    parsed, counts, seen = [], [], set()
+    for field in fields:
+        if not isinstance(field, dict):
+            raise malformed("fields")
+        name, dtype, shape, rows = (field.get(k) for k in ("name", "dtype", "shape", "rows"))
+        if not isinstance(name, str) or not name or name in seen:
+            raise malformed(f"field name {name!r}")
+        seen.add(name)
+        if _row_dtype(dtype) is None:
+            raise malformed(f"dtype of {name!r}")
+        if not isinstance(shape, list) or len(shape) > _MAX_RANK or not all(_is_count(d) for d in shape):
+            raise malformed(f"shape of {name!r}")
+        if not _is_count(rows):
+            raise malformed(f"row count of {name!r}")
+        parsed.append((name, dtype, tuple(shape)))
+        counts.append(rows)
+    return run, count, head, tuple(parsed), tuple(counts)
 
 
 def _load_from(r: _Reader, meta: Mapping[str, Any], state_template: Any, row_names: Sequence[str]):
@@ -514,14 +858,18 @@ def _load_from(r: _Reader, meta: Mapping[str, Any], state_template: Any, row_nam
             raise r.corrupt(f"counter {key!r} is not a number")
 
     named, treedef = _flatten_named(state_template)
-    row_names = list(row_names)
-    wanted = set(_HEADER_KEYS) | {_STATE + n for n, _ in named} | {_ROWS + n for n in row_names}
-    missing = sorted(wanted - set(r.members))
+    wanted = set(_HEADER_KEYS) | {_STATE + n for n, _ in named}
+    stored = _segments_entry(r) if r.has(_SEGMENTS) else None
+    stored_names = [name for name, _, _ in stored[3]] if stored else []
+    missing = set(wanted - set(r.members))
+    unexpected = set(set(r.members) - wanted)
+    if stored:
+        missing |= {_ROWS + n for n in row_names if n not in stored_names}
+        unexpected |= {_ROWS + n for n in stored_names if n not in row_names}
     if missing:
-        raise r.corrupt(f"missing entries: {', '.join(missing)}")
-    unexpected = sorted(set(r.members) - wanted)
+        raise r.corrupt(f"missing entries: {', '.join(sorted(missing))}")
     if unexpected:
-        raise r.corrupt(f"unexpected entries: {', '.join(unexpected)}")
+        raise r.corrupt(f"unexpected entries: {', '.join(sorted(unexpected))}")
 
     leaves = []
     for name, leaf in named:
@@ -534,8 +882,71 @@ def _load_from(r: _Reader, meta: Mapping[str, Any], state_template: Any, row_nam
             raise r.corrupt(f"entry {key!r} has dtype {arr.dtype}, expected {dtype}")
         leaves.append(jnp.asarray(arr.astype(dtype, copy=False)))
     state = jtu.tree_unflatten(treedef, leaves)
-    rows = {name: r.array(_ROWS + name) for name in row_names}
-    return counters, state, rows
+    return counters, state, stored
+
+
+def _read_segment(r: _Reader, run: str, index: int, fields) -> tuple[str, dict[str, np.ndarray]]:
+    """``(d_{i-1}, rows)`` of segment ``index``, every entry checked against ``fields``."""
+    fmt = r.text("__format__")
+    if fmt != ROWS_FORMAT:
+        raise r.corrupt(f"format {fmt!r}, expected {ROWS_FORMAT!r}")
+    version = r.array("__version__")
+    if version.ndim != 0 or version.dtype.kind not in "iu" or int(version) != VERSION:
+        raise r.corrupt(f"entry '__version__' is not {VERSION}")
+    info = r.json_dict("segment")
+    previous = info.get("previous")
+    own = info.get("index")
+    if (info.get("run") != run or not isinstance(own, int) or isinstance(own, bool) or own != index
+            or not (isinstance(previous, str) and _DIGEST.fullmatch(previous))):
+        raise r.corrupt("it does not belong to this checkpoint (another run's, or a stale one)")
+    wanted = set(_SEGMENT_KEYS) | {_ROWS + name for name, _, _ in fields}
+    missing, unexpected = sorted(wanted - set(r.members)), sorted(set(r.members) - wanted)
+    if missing:
+        raise r.corrupt(f"missing entries: {', '.join(missing)}")
+    if unexpected:
+        raise r.corrupt(f"unexpected entries: {', '.join(unexpected)}")
+    arrays = {}
+    for name, dtype, shape in fields:
+        arr = r.array(_ROWS + name)
+        if arr.ndim == 0 or arr.shape[1:] != shape or arr.dtype.str != dtype:
+            want = f"(k{''.join(f', {d}' for d in shape)}) of {np.dtype(dtype)}"
+            raise r.corrupt(f"entry {_ROWS + name!r} has shape {arr.shape} of {arr.dtype}, expected {want}")
+        arrays[name] = arr
+    return previous, arrays
+
+
+def _load_rows(target: str, shown: str, stored, row_names: Sequence[str]):
+    """All rows of the committed segments (walking the chain back from the main file's head),
+    and the :class:`Segments` a resumed run appends to."""
+    run, count, head, fields, counts = stored
+    directory, shown_directory = rows_directory(target), rows_directory(shown)
+    parts: dict[str, list[np.ndarray]] = {name: [] for name, _, _ in fields}
+    files = []
+    digest = head
+    for index in range(count - 1, -1, -1):
+        name = _segment_name(index, digest)
+        part = f"row segment '{os.path.join(shown_directory, name)}'"
+        with _open_archive(os.path.join(directory, name), shown, part) as r:
+            previous, arrays = _read_segment(r, run, index, fields)
+        if _chain(previous, index, fields, arrays) != digest or (index == 0 and previous != _seed(run)):
+            raise r.corrupt("its rows are not the ones the checkpoint committed (a stale segment, or another run's)")
+        for field, _, _ in fields:
+            parts[field].append(arrays[field])
+        files.append(name)
+        digest = previous
+    rows = {}
+    for (name, dtype, shape), total in zip(fields, counts):
+        blocks = parts[name][::-1]
+        if not blocks:
+            arr = np.zeros((0,) + shape, np.dtype(dtype))
+        else:
+            arr = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+        if len(arr) != total:
+            raise _error(shown, _corrupt_message(
+                shown, f"its segments hold {len(arr)} rows of {name!r}, its 'segments' entry says {total}"))
+        rows[name] = arr
+    segments = Segments(run, tuple(files[::-1]), head, fields, counts)
+    return {name: rows[name] for name in row_names}, segments
 
 
 # --------------------------------------------------------------------------------------------

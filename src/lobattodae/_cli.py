@@ -160,7 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true",
                    help="never show a progress bar (by default one appears when a run takes more than a second)")
     p.add_argument("--lam-start", choices=LAM_START_CHOICES, default="auto", help=LAM_START_HELP)
-    p.add_argument("--checkpoint", default=None, help="checkpoint file (.npz): written periodically and on Ctrl-C/SIGTERM")
+    p.add_argument("--checkpoint", default=None,
+                   help="checkpoint file (.npz; its rows go to FILE.rows/, appended at each save): written "
+                        "periodically and on Ctrl-C/SIGTERM")
     p.add_argument("--checkpoint-every", type=_positive_int, default=100_000, help="steps between checkpoints")
     p.add_argument("--resume", action="store_true", help="continue from --checkpoint if it exists")
     p.add_argument("--max-recoveries", type=int, default=0, help="retry failed steps as substeps up to this many times")

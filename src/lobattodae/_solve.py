@@ -51,6 +51,8 @@ STATS = {
     "n_steps": "accepted steps",
     "n_rejected": "rejected step attempts (error test or Newton failure; adaptive steps)",
     "h": "the constant step size, or None for adaptive steps",
+    "n_clamped": "ReversibleStepSize: steps whose control variable ρ was clamped (MAX_DENSITY_CHANGE), each one "
+                 "unsymmetric, so 0 for a reversible run; None for other step-size rules",
     "failed_step": "index of the failed step, or None",
     "recoveries": "failed steps retried as substeps (max_recoveries, constant steps)",
     "compile_and_run_time": "wall time of the integration loop, compilation included (s)",
@@ -202,6 +204,12 @@ class _Options:
         if checkpoint is not None:
             path = os.fspath(checkpoint)
             check_writable(path, "checkpoint")
+            rows_dir = _checkpoint.rows_directory(path)
+            if os.path.lexists(rows_dir) and not os.path.isdir(rows_dir):
+                raise LobattoDAEInputError(
+                    f"cannot write the checkpoint '{path}': its rows go to the directory '{rows_dir}', and something "
+                    "else is there; remove it or choose another checkpoint path."
+                )
         return cls(t0, t1, n, h, control, ctrl, output, t_eval, every, chunk_size or CHUNK, max_recoveries, path,
                    checkpoint_every, bool(resume))
 
@@ -321,15 +329,85 @@ def _check_t_span(t_span) -> tuple[float, float]:
 
 
 # -- the run ------------------------------------------------------------------------------------
+#: Recorded chunks are merged into one block every this many: few NumPy objects, and each
+#: row is copied once more, not once per chunk.
+_MERGE = 32
+
+
+class _Rows(NamedTuple):
+    """Output rows of one kind, immutable: NumPy blocks, each a tuple of fields (arrays with
+    the same number of rows). Appending returns a new value; the trailing unmerged blocks are
+    merged into one every :data:`_MERGE` appends. ``saved``: the first rows, already in the
+    checkpoint (a save writes only the rows after them)."""
+
+    empty: tuple  # the fields with no rows (dtypes and trailing shapes)
+    blocks: tuple = ()
+    merged: int = 0  # the first blocks are merged ones; the others are recent chunks
+    count: int = 0
+    saved: int = 0
+
+    def append(self, block: tuple) -> _Rows:
+        k = len(block[0])
+        if not k:
+            return self
+        block = tuple(np.asarray(x, e.dtype) for x, e in zip(block, self.empty, strict=True))
+        blocks, merged = self.blocks + (block,), self.merged
+        if len(blocks) - merged >= _MERGE:
+            blocks, merged = blocks[:merged] + (_cat(blocks[merged:]),), merged + 1
+        return self._replace(blocks=blocks, merged=merged, count=self.count + k)
+
+    def since(self, start: int) -> tuple:
+        """The fields of the rows from ``start`` on, concatenated (only the blocks holding them
+        are read)."""
+        parts, first = [], self.count
+        for block in reversed(self.blocks):
+            if first <= start:
+                break
+            first -= len(block[0])
+            parts.append(block if first >= start else tuple(x[start - first:] for x in block))
+        return _cat(parts[::-1]) if parts else self.empty
+
+    def all(self) -> tuple:
+        return self.since(0)
+
+    def unsaved(self) -> tuple:
+        return self.since(self.saved)
+
+
+def _cat(blocks) -> tuple:
+    return blocks[0] if len(blocks) == 1 else tuple(np.concatenate(xs) for xs in zip(*blocks))
+
+
+#: The names of the row fields in a checkpoint, per kind of rows.
+_ROW_FIELDS = {"rows": Record._fields, "dense": ("dense",), "events": ("event_rows", "event_index")}
+
+
 class _Progress(NamedTuple):
     """How far a run got: replaced as a whole (one assignment), so that an interrupt can never
     see a state that does not belong to its rows."""
 
     state: State
-    rows: tuple  # of Record chunks (NumPy)
-    dense: tuple  # of packed dense-output chunks (NumPy)
-    events: tuple  # of (rows, index) chunks (NumPy)
+    rows: _Rows  # the output rows (Record fields)
+    dense: _Rows | None  # packed dense-output rows (dense_output=True)
+    events: _Rows | None  # (event_rows, event_index) (with events)
     recoveries: int
+    segments: Any = None  # _checkpoint.Segments of the last checkpoint written or read
+
+    @classmethod
+    def start(cls, state: State, opt: _Options, recoveries: int = 0) -> _Progress:
+        """No rows yet (their shapes from ``state``)."""
+        n, m, s = state.q.shape[-1], state.lam.shape[-1], state.last.V.shape[0]
+        f, i = np.float64, np.int32
+        rows = (np.zeros(0, f), np.zeros((0, n), f), np.zeros((0, n), f), np.zeros((0, m), f), np.zeros(0, i),
+                np.zeros(0, i), np.zeros(0, f), np.zeros(0, f), np.zeros(0, f), np.zeros(0, bool))
+        dense = _Rows((np.zeros((0, 2 + 2 * n + s * (2 * n + m)), f),)) if opt.output.dense else None
+        events = _Rows((np.zeros((0, 1 + 2 * n + m), f), np.zeros(0, i))) if opt.output.events else None
+        return cls(state, _Rows(rows), dense, events, recoveries)
+
+    def kinds(self):
+        """``(name, rows)`` of each kind of rows the run records."""
+        kinds = (("rows", self.rows), ("dense", self.dense), ("events", self.events))
+        return [(kind, rows) for kind, rows in kinds if rows is not None]
 
 
 def solve(
@@ -430,9 +508,14 @@ def solve(
         as 2, 4, 8 or 16 substeps, at most this many times per solve; ``stats["recoveries"]``
         counts them. Adaptive steps shrink a failed step by themselves.
     checkpoint : path, optional
-        Write the computed prefix and the loop state to this file (format:
-        :mod:`lobattodae._checkpoint`) every ``checkpoint_every`` steps (at chunk boundaries),
-        at the end, and on Ctrl-C. Its directory must exist.
+        Write the loop state and the computed rows to this file every ``checkpoint_every``
+        steps (at chunk boundaries), at the end, and on Ctrl-C. Each save writes only the
+        rows since the previous one, appended as a segment file in the directory
+        ``<checkpoint>.rows/`` next to it, and rewrites the small file itself (the state),
+        atomically (format: :mod:`lobattodae._checkpoint`): bytes written grow with the rows
+        kept (``save_every``), not with the number of saves. Keep (move, copy, delete) the
+        file and its ``.rows`` directory together. Its directory must exist. A run without
+        ``resume`` replaces an existing checkpoint (its segments are removed at the first save).
     checkpoint_every : int, optional
     resume : bool
         Continue from ``checkpoint`` if it exists. It must come from the same run (problem
@@ -502,7 +585,7 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
         problem, method, controller, output, jnp.asarray(opt.t0, f64), jnp.asarray(opt.t1, f64), opt.control,
         jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0), args,
     )
-    run = _Progress(state, (), (), (), 0)
+    run = _Progress.start(state, opt)
     meta = _run_identity(problem, method, args, opt, q0, p0, lam0) if opt.checkpoint else None
     if opt.checkpoint and opt.resume and _checkpoint.exists(opt.checkpoint):
         run = _resume(opt, meta, state)
@@ -519,18 +602,19 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
                 if run.recoveries < opt.max_recoveries:
                     recovered = _recover_step(problem, method, args, state)
                 if recovered is None:
-                    run = _Progress(state, rows, dense, events, run.recoveries)
+                    run = run._replace(state=state, rows=rows, dense=dense, events=events)
                     failed = True
                     break
                 state, row = recovered
-                run = _Progress(state, rows + (row,), dense, events, run.recoveries + 1)
+                run = run._replace(state=state, rows=rows.append(tuple(row)), dense=dense, events=events,
+                                   recoveries=run.recoveries + 1)
             else:
-                run = _Progress(state, rows, dense, events, run.recoveries)
+                run = run._replace(state=state, rows=rows, dense=dense, events=events)
             if report is not None:
                 report(*_progress_numbers(opt, run.state))
             done = int(run.state.n_accepted)
             if opt.checkpoint and opt.checkpoint_every and done - last_saved >= opt.checkpoint_every:
-                _save(opt.checkpoint, meta, run, opt)
+                run = _save(opt.checkpoint, meta, run)
                 last_saved = done
     except KeyboardInterrupt:  # a second Ctrl-C, or one outside the main thread's handler
         pass
@@ -538,7 +622,7 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
         report.close()
     finished = _finished(opt, run.state)
     if opt.checkpoint and (int(run.state.n_accepted) > last_saved or not finished):
-        _save(opt.checkpoint, meta, run, opt)
+        run = _save(opt.checkpoint, meta, run)
     elapsed = time.perf_counter() - start
     return _assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failed, finished, throw, elapsed)
 
@@ -565,16 +649,22 @@ def _check_events(events, t0, q0, p0, args) -> None:
 
 
 def _numpy_chunk(run: _Progress, chunk):
-    """The rows, dense-output data and event zeros of a chunk, appended to the run's (NumPy)."""
+    """The rows, dense-output data and event zeros of a chunk, appended to the run's (NumPy).
+
+    The used rows are copied out of the chunk's buffers (``np.asarray`` of a JAX array is a
+    view of it), so that the buffers (``chunk_size`` rows each) are freed: with ``save_every``
+    a chunk uses few of them."""
+
+    def used(x, k):
+        return np.array(np.asarray(x)[:k])
+
     rows, dense, events = run.rows, run.dense, run.events
-    k = int(chunk.n_rows)
-    if k:
-        rows = rows + (Record(*(np.asarray(x)[:k] for x in chunk.rows)),)
-    if chunk.dense is not None and int(chunk.n_dense):
-        dense = dense + (np.asarray(chunk.dense)[: int(chunk.n_dense)],)
-    if chunk.event_rows is not None and int(chunk.n_events):
+    rows = rows.append(tuple(used(x, int(chunk.n_rows)) for x in chunk.rows))
+    if dense is not None:
+        dense = dense.append((used(chunk.dense, int(chunk.n_dense)),))
+    if events is not None:
         e = int(chunk.n_events)
-        events = events + ((np.asarray(chunk.event_rows)[:e], np.asarray(chunk.event_index)[:e]),)
+        events = events.append((used(chunk.event_rows, e), used(chunk.event_index, e)))
     return rows, dense, events
 
 
@@ -648,51 +738,41 @@ def _run_identity(problem, method, args, opt: _Options, q0, p0, lam0) -> dict:
     }
 
 
-def _row_arrays(run: _Progress, opt: _Options) -> dict:
-    rows = _concat(run.rows, run.state)._asdict()
-    n, m, s = run.state.q.shape[-1], run.state.lam.shape[-1], run.state.last.V.shape[0]
-    if opt.output.dense:
-        size = 2 + 2 * n + s * (2 * n + m)
-        rows["dense"] = np.concatenate(run.dense) if run.dense else np.zeros((0, size))
-    if opt.output.events:
-        rows["event_rows"] = np.concatenate([e[0] for e in run.events]) if run.events else np.zeros((0, 1 + 2 * n + m))
-        rows["event_index"] = np.concatenate([e[1] for e in run.events]) if run.events else np.zeros(0, np.int32)
-    return rows
-
-
-def _save(path: str, meta: dict, run: _Progress, opt: _Options) -> None:
-    rows = _row_arrays(run, opt)
-    _checkpoint.save(
-        path, meta=meta, counters={"done": int(run.state.n_accepted), "rows": len(rows["t"]), "recoveries": run.recoveries}, state=run.state, rows=rows,
-    )
+def _save(path: str, meta: dict, run: _Progress) -> _Progress:
+    """Commit a checkpoint of ``run``: its state and the rows since the last save (an
+    incremental segment, :mod:`lobattodae._checkpoint`). Returns ``run`` with those rows
+    marked saved."""
+    new = {}
+    for kind, rows in run.kinds():
+        new.update(zip(_ROW_FIELDS[kind], rows.unsaved()))
+    counters = {"done": int(run.state.n_accepted), "rows": run.rows.count, "recoveries": run.recoveries}
+    segments = _checkpoint.save(path, meta=meta, counters=counters, state=run.state, rows=new, previous=run.segments)
+    marked = {kind: rows._replace(saved=rows.count) for kind, rows in run.kinds()}
+    return run._replace(segments=segments, **marked)
 
 
 def _resume(opt: _Options, meta: dict, template: State) -> _Progress:
     path = opt.checkpoint
-    names = list(Record._fields) + (["dense"] if opt.output.dense else []) + (
-        ["event_rows", "event_index"] if opt.output.events else []
-    )
-    counters, state, rows = _checkpoint.load(path, meta=meta, state_template=template, row_names=names)
+    empty = _Progress.start(template, opt)
+    names = [name for kind, _ in empty.kinds() for name in _ROW_FIELDS[kind]]
+    counters, state, rows, segments = _checkpoint.load(path, meta=meta, state_template=template, row_names=names)
     count = int(counters.get("rows", -1))
-    rec = Record(**{f: rows[f] for f in Record._fields})
-    if count < 0 or any(len(x) != count for x in rec):
+    if count < 0 or any(len(rows[f]) != count for f in Record._fields):
         raise _checkpoint.CheckpointError(
-            f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint (it holds {len(rec.t)} rows, its "
+            f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint (it holds {len(rows['t'])} rows, its "
             f"counter says {count}); delete it or restart without resume."
         )
-    dense = (rows["dense"],) if opt.output.dense and len(rows["dense"]) else ()
-    events = ((rows["event_rows"], rows["event_index"]),) if opt.output.events and len(rows["event_index"]) else ()
-    return _Progress(state, (rec,) if count else (), dense, events, int(counters.get("recoveries", 0)))
-
-
-def _concat(rows: tuple, state: State) -> Record:
-    if rows:
-        return Record(*(np.concatenate(xs) for xs in zip(*rows)))
-    n, m = state.q.shape[-1], state.lam.shape[-1]
-    return Record(
-        np.zeros(0), np.zeros((0, n)), np.zeros((0, n)), np.zeros((0, m)), np.zeros(0, np.int32),
-        np.zeros(0, np.int32), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, bool),
-    )
+    if opt.output.events and len(rows["event_rows"]) != len(rows["event_index"]):
+        raise _checkpoint.CheckpointError(
+            f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint ({len(rows['event_rows'])} event rows, "
+            f"{len(rows['event_index'])} event indices); delete it or restart without resume."
+        )
+    run = _Progress.start(state, opt, int(counters.get("recoveries", 0)))._replace(segments=segments)
+    loaded = {}
+    for kind, empty_rows in run.kinds():
+        fields = tuple(rows[name] for name in _ROW_FIELDS[kind])
+        loaded[kind] = empty_rows.append(fields)._replace(saved=len(fields[0]))
+    return run._replace(**loaded)
 
 
 # -- interrupts and progress ----------------------------------------------------------------------
@@ -771,7 +851,7 @@ class _ProgressBar:
 # -- the Solution -----------------------------------------------------------------------------------
 def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Progress, failed, finished, throw,
               elapsed):
-    out = _concat(run.rows, run.state)
+    out = Record(*run.rows.all())
     state = run.state
     # Non-finite values reported as success would be a bug upstream; never let them through.
     finite = np.all(np.isfinite(out.q), axis=1) & np.all(np.isfinite(out.p), axis=1) & np.all(np.isfinite(out.lam), axis=1)
@@ -811,6 +891,7 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
         "n_steps": int(state.n_accepted),
         "n_rejected": int(state.n_rejected),
         "h": opt.h,
+        "n_clamped": int(state.controller.n_clamped) if isinstance(opt.controller, ReversibleStepSize) else None,
         "failed_step": failed_step,
         "recoveries": run.recoveries,
         "compile_and_run_time": elapsed,
@@ -818,7 +899,7 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
     events = _event_lists(opt, run, q0.shape[-1], lam0.shape[-1])
     sol = None
     if opt.output.dense:
-        dense = np.concatenate(run.dense) if run.dense else np.zeros((0, 2 + 2 * q0.shape[-1]))
+        (dense,) = run.dense.all()
         sol = DenseOutput(method.pair, dense, q0.shape[-1], lam0.shape[-1], opt.t0)
     success = status.success and failed_step is None
     message = status.message
@@ -853,11 +934,7 @@ def _event_lists(opt: _Options, run: _Progress, n: int, m: int):
     """``(t_events, q_events, p_events, lam_events)``: one array per event function (or Nones)."""
     if not opt.output.events:
         return None, None, None, None
-    if run.events:
-        rows = np.concatenate([e[0] for e in run.events])
-        index = np.concatenate([e[1] for e in run.events])
-    else:
-        rows, index = np.zeros((0, 1 + 2 * n + m)), np.zeros(0, np.int32)
+    rows, index = run.events.all()
     out = ([], [], [], [])
     for j in range(len(opt.output.events)):
         mine = rows[index == j]
