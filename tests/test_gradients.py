@@ -94,12 +94,11 @@ def test_parameter_derivative_converges_to_the_exact_one():
     assert errors[1] < 1e-3 and order > 1.8, (errors, order)
 
 
-def test_adaptive_reverse_mode_matches_forward_mode_and_finite_differences():
+def _adaptive_sleigh_run():
+    """``(θ = (p0 scale, t1), differentiable, t_eval) -> q, p at t1 (or q at t_eval)``: the sleigh
+    with s = 4 under PIController, p0 scaled (λ0 consistent)."""
     ex = get_example("sleigh")
     method = L.LobattoIIIAIIIB(stages=4)
-    # inside the interval: a row at t1 itself is the end state in the while loop (derivative f in
-    # t1) and the dense value at the fixed time 1 after the scan (derivative ~0)
-    t_eval = jnp.linspace(0.2, 0.9, 4)
 
     def run(theta, differentiable=True, t_eval=None):
         p0 = theta[0] * jnp.asarray(ex.p0)
@@ -111,7 +110,11 @@ def test_adaptive_reverse_mode_matches_forward_mode_and_finite_differences():
             return r.q.ravel()
         return jnp.concatenate([r.q[r.n_rows - 1], r.p[r.n_rows - 1]])
 
-    theta = jnp.array([1.0, 1.0])
+    return run, jnp.array([1.0, 1.0])
+
+
+def test_adaptive_reverse_mode_matches_forward_mode_and_finite_differences():
+    run, theta = _adaptive_sleigh_run()
     reverse = np.asarray(jax.jacrev(run)(theta))
     forward = np.asarray(jax.jacfwd(lambda x: run(x, differentiable=False))(theta))
     scale = np.max(np.abs(forward))
@@ -120,7 +123,16 @@ def test_adaptive_reverse_mode_matches_forward_mode_and_finite_differences():
     # differ from the derivative along the chosen steps by O(tolerance)
     fd = _central_differences(run, theta, 1e-6)
     assert np.max(np.abs(forward - fd)) <= 1e-6 * scale
-    # t_eval rows: read from the dense output after the loop (differentiable) or while it runs
+
+
+@pytest.mark.slow
+def test_adaptive_t_eval_rows_in_reverse_mode_match_forward_mode():
+    """t_eval rows are read from the dense output after the loop (differentiable=True) or while
+    it runs; both give the same derivatives. Times inside the interval: a row at t1 itself is
+    the end state in the while loop (derivative f in t1) and the dense value at the fixed time
+    t1 after the scan (derivative ~0)."""
+    run, theta = _adaptive_sleigh_run()
+    t_eval = jnp.linspace(0.2, 0.9, 4)
     rows_reverse = np.asarray(jax.jacrev(lambda x: run(x, True, t_eval))(theta))
     rows_forward = np.asarray(jax.jacfwd(lambda x: run(x, False, t_eval))(theta))
     np.testing.assert_allclose(rows_reverse, rows_forward, rtol=1e-10, atol=1e-12)
