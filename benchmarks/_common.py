@@ -3,9 +3,9 @@
 * machine description and load average, best-of-k timing, counting XLA compilations;
 * searches for the cheapest setting that meets an error target (a step count for a
   constant-step method, a tolerance for an adaptive one);
-* the **index-reduced ODEs** ``y' = F(y)``, ``y = (q, p)``, of the knife edge and of the
-  falling rolling disk, written as a user of scipy or diffrax would write them: the knife
-  edge by hand, the falling disk generated with SymPy from the same Hamiltonian and
+* the **index-reduced ODEs** ``y' = F(y)``, ``y = (q, p)``, of the knife edge, the
+  Chaplygin sleigh and the falling rolling disk, written as a user of scipy or diffrax
+  would write them: the knife edge and the sleigh by hand, the falling disk generated with SymPy from the same Hamiltonian and
   constraint as ``lobattodae.examples`` (``_rolling_disk.py``); each comes as a plain
   Python/NumPy function for ``scipy.integrate.solve_ivp`` and as a JAX function for
   diffrax, and is validated against the library's own JAX vector field;
@@ -422,6 +422,39 @@ def falling_disk_ode(args) -> ReducedODE:
     return ReducedODE("falling-disk", 5, rhs, rhs_jax, phi, params, how, build)
 
 
+def sleigh_ode(args) -> ReducedODE:
+    """Chaplygin sleigh, by hand: ``v = (p_x/m, p_y/m, p_θ/I)``, ``μ = (−sin θ, cos θ, −a)``,
+    ``p' = μᵀλ`` (H does not depend on q), and differentiating ``φ = μ v`` along the flow,
+    ``λ = ω (cos θ v_x + sin θ v_y) / (1/m + a²/I)`` with ``ω = p_θ/I`` (valid at any
+    (q, p); on the constraint it is the closed form's ``I m v ω / (I + m a²)``)."""
+    m, I, a = float(args.m), float(args.I), float(args.a)  # noqa: E741
+    sin, cos = math.sin, math.cos
+    den = 1.0 / m + a * a / I
+
+    def rhs(t, y):
+        _, _, th, px, py, pth = y.tolist()
+        s, c = sin(th), cos(th)
+        vx, vy, w = px / m, py / m, pth / I
+        lam = w * (c * vx + s * vy) / den
+        return np.array([vx, vy, w, -s * lam, c * lam, -a * lam])
+
+    def rhs_jax(t, y, params):
+        import jax.numpy as jnp
+
+        m_, I_, a_ = params
+        th, px, py, pth = y[2], y[3], y[4], y[5]
+        s, c = jnp.sin(th), jnp.cos(th)
+        vx, vy, w = px / m_, py / m_, pth / I_
+        lam = w * (c * vx + s * vy) / (1.0 / m_ + a_ * a_ / I_)
+        return jnp.stack([vx, vy, w, -s * lam, c * lam, -a_ * lam])
+
+    def phi(q, p):
+        q, p = np.atleast_2d(q), np.atleast_2d(p)
+        return (-np.sin(q[:, 2]) * p[:, 0] + np.cos(q[:, 2]) * p[:, 1]) / m - a * p[:, 2] / I
+
+    return ReducedODE("sleigh", 3, rhs, rhs_jax, phi, (m, I, a), "written by hand (math.sin/cos on floats)")
+
+
 def _time_k(fn, k):
     t0 = time.perf_counter()
     for _ in range(k):
@@ -432,9 +465,156 @@ def _time_k(fn, k):
 def reduced_ode(name: str, args) -> ReducedODE:
     if name == "knife-edge":
         return knife_edge_ode(args)
-    if name == "falling-disk":
+    if name in ("falling-disk", "falling-disk-general"):  # same equations, other initial values
         return falling_disk_ode(args)
+    if name == "sleigh":
+        return sleigh_ode(args)
     raise ValueError(f"no index-reduced ODE written for {name!r}")
+
+
+# ------------------------------------------------ index-2 DAE residuals for SUNDIALS IDA
+@dataclass
+class NumpyDAE:
+    """The index-2 DAE ``F(t, y, y') = [q' − f, p' − g(λ), φ] = 0``, ``y = (q, p, λ)``, in
+    plain Python/NumPy, as a user of IDA would write it (``baselines.IDANumpy`` calls it).
+
+    ``res(t, y, yp) -> (2n+m,)``; ``jac_y(t, y) -> (2n+m, 2n+m)``, the exact ``∂F/∂y``
+    (``∂F/∂y'`` is the constant ``diag(1, …, 1, 0, …, 0)``)."""
+
+    name: str
+    n: int
+    m: int
+    res: Callable
+    jac_y: Callable
+    how: str
+    build_seconds: float = 0.0
+
+
+def sleigh_dae(args) -> NumpyDAE:
+    """Chaplygin sleigh, by hand: ``f = (p_x/m, p_y/m, p_θ/I)``, ``g = μᵀλ`` with
+    ``μ = (−sin θ, cos θ, −a)``, ``φ = μ f``."""
+    m, I, a = float(args.m), float(args.I), float(args.a)  # noqa: E741
+    sin, cos = math.sin, math.cos
+
+    def res(t, y, yp):
+        _, _, th, px, py, pth, lam = y.tolist()
+        s, c = sin(th), cos(th)
+        vx, vy, w = px / m, py / m, pth / I
+        return np.array([yp[0] - vx, yp[1] - vy, yp[2] - w,
+                         yp[3] + s * lam, yp[4] - c * lam, yp[5] + a * lam,
+                         -s * vx + c * vy - a * w])
+
+    def jac_y(t, y):
+        _, _, th, px, py, pth, lam = y.tolist()
+        s, c = sin(th), cos(th)
+        J = np.zeros((7, 7))
+        J[0, 3] = J[1, 4] = -1.0 / m
+        J[2, 5] = -1.0 / I
+        J[3, 2], J[3, 6] = c * lam, s
+        J[4, 2], J[4, 6] = s * lam, -c
+        J[5, 6] = a
+        J[6, 2] = (-c * px - s * py) / m
+        J[6, 3], J[6, 4], J[6, 5] = -s / m, c / m, -a / I
+        return J
+
+    return NumpyDAE("sleigh", 3, 1, res, jac_y, "written by hand (math.sin/cos on floats)")
+
+
+def falling_disk_dae(args) -> NumpyDAE:
+    """Falling rolling disk (the mass matrix of ``_falling_disk_sympy``), generated with
+    SymPy: ``f = v = M⁻¹p``, ``g = ½ vᵀ(∂_k M)v − ∂_k V + μᵀλ``, ``φ = μ v``, and the exact
+    Jacobian ``∂F/∂y`` by symbolic differentiation, all through ``lambdify(cse=True)``
+    with ``math`` functions (Python floats)."""
+    import sympy as sp
+
+    t0 = time.perf_counter()
+    if "fd_dae" not in _SYMPY_CACHE:
+        q = sp.symbols("x y theta phi psi")
+        p = sp.symbols("p0:5")
+        lam = sp.symbols("l0:2")
+        qd = sp.symbols("qd0:5")
+        pd = sp.symbols("pd0:5")
+        m, R, g, I1, I3 = prm = sp.symbols("m R g I1 I3", positive=True)
+        th, ph = q[2], q[3]
+        st, ct, sph, cph = sp.sin(th), sp.cos(th), sp.sin(ph), sp.cos(ph)
+        M = sp.zeros(5, 5)
+        M[0, 0] = M[1, 1] = m
+        M[0, 2], M[0, 3] = -m * R * sph * ct, -m * R * st * cph
+        M[1, 2], M[1, 3] = m * R * cph * ct, -m * R * sph * st
+        M[2, 2] = I1 + m * R**2
+        M[3, 3] = I1 * ct**2 + (I3 + m * R**2) * st**2
+        M[3, 4] = -I3 * st
+        M[4, 4] = I3
+        for i in range(5):
+            for j in range(i):
+                M[i, j] = M[j, i]
+        V = m * g * R * ct
+        mu = sp.Matrix([[1, 0, 0, 0, -R * cph], [0, 1, 0, 0, -R * sph]])
+        v = M.LUsolve(sp.Matrix(p))
+        # -H_q = ½ vᵀ(∂_k M)v − ∂_k V, written with v = M⁻¹p
+        gq = sp.Matrix([(v.T * M.diff(qk) * v)[0] / 2 - V.diff(qk) for qk in q]) + mu.T * sp.Matrix(lam)
+        F = sp.Matrix(list(sp.Matrix(qd) - v) + list(sp.Matrix(pd) - gq) + list(mu * v))
+        y = sp.Matrix(list(q) + list(p) + list(lam))
+        Jy = F.jacobian(y)
+        _SYMPY_CACHE["fd_dae"] = (q, p, lam, qd, pd, prm, F, Jy)
+    q, p, lam, qd, pd, prm, F, Jy = _SYMPY_CACHE["fd_dae"]
+    params = tuple(float(getattr(args, k)) for k in ("m", "R", "g", "I1", "I3"))
+    f_res = sp.lambdify([q, p, lam, qd, pd, prm], list(F), ["math", "numpy"], cse=True)
+    f_jac = sp.lambdify([q, p, lam, prm], list(Jy), ["math", "numpy"], cse=True)
+    build = time.perf_counter() - t0
+
+    def res(t, y, yp):
+        yl, ypl = y.tolist(), yp.tolist()
+        return np.array(f_res(yl[:5], yl[5:10], yl[10:], ypl[:5], ypl[5:10], params))
+
+    def jac_y(t, y):
+        yl = y.tolist()
+        return np.array(f_jac(yl[:5], yl[5:10], yl[10:], params), dtype=float).reshape(12, 12)
+
+    return NumpyDAE("falling-disk", 5, 2, res, jac_y,
+                    f"SymPy {sp.__version__} lambdify(cse=True) with math functions", build)
+
+
+def numpy_dae(name: str, args) -> NumpyDAE:
+    if name == "sleigh":
+        return sleigh_dae(args)
+    if name in ("falling-disk", "falling-disk-general"):
+        return falling_disk_dae(args)
+    raise ValueError(f"no NumPy DAE residual written for {name!r}")
+
+
+def validate_dae(dae: NumpyDAE, ex, n_points: int = 6, seed: int = 0) -> dict:
+    """Max relative difference of ``dae.res`` and ``dae.jac_y`` from the residual
+    ``[y'_q − f, y'_p − g, φ]`` built from the library's ``problem.f, g, phi`` and its JAX
+    Jacobian, at the initial value and random points (relative to the largest value)."""
+    import jax
+    import jax.numpy as jnp
+
+    n, m, problem, args = dae.n, dae.m, ex.problem, ex.args
+
+    def res_lib(y, yp):
+        t = jnp.asarray(0.0)
+        q, p, lam = y[:n], y[n:2 * n], y[2 * n:]
+        return jnp.concatenate([yp[:n] - problem.f(t, q, p, args), yp[n:2 * n] - problem.g(t, q, p, lam, args),
+                                problem.phi(t, q, p, args)])
+
+    F, J = jax.jit(res_lib), jax.jit(jax.jacfwd(res_lib))
+    rng = np.random.default_rng(seed)
+    pts = [(np.r_[ex.q0, ex.p0, ex.lam0], np.zeros(2 * n + m))]
+    for _ in range(n_points):
+        y = rng.normal(size=2 * n + m)
+        y[2] = rng.uniform(-1.2, 1.2)
+        pts.append((y, rng.normal(size=2 * n + m)))
+    d_r, d_j, s_r, s_j = [], [], [], []
+    for y, yp in pts:
+        r_ref, j_ref = np.asarray(F(jnp.asarray(y), jnp.asarray(yp))), np.asarray(J(jnp.asarray(y), jnp.asarray(yp)))
+        d_r.append(np.max(np.abs(dae.res(0.0, y, yp) - r_ref)))
+        d_j.append(np.max(np.abs(dae.jac_y(0.0, y) - j_ref)))
+        s_r.append(np.max(np.abs(r_ref)))
+        s_j.append(np.max(np.abs(j_ref)))
+    err_r, err_j = max(d_r) / max(s_r), max(d_j) / max(s_j)
+    return {"points": len(pts), "res_rel_err": float(err_r), "jac_rel_err": float(err_j),
+            "ok": bool(max(err_r, err_j) <= 1e-12)}
 
 
 def library_vector_field(problem, args, n: int, m: int):

@@ -49,6 +49,7 @@ RESULTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results"
 __all__ = [
     "IndexReducedODE",
     "IDABaseline",
+    "IDANumpy",
     "McLachlanPerlmutter",
     "RunRecord",
     "time_best",
@@ -336,6 +337,29 @@ class IDABaseline:
                 if late and not done:
                     msg = f"abandoned after {time_limit:g} s wall time at t = {t_now:.4g} ({len(ts) - 1} steps)"
                 return IDAOutcome(np.asarray(ts), np.asarray(ys), ok, msg, int(r.nfev), int(r.njev), len(ts) - 1)
+
+
+class IDANumpy(IDABaseline):
+    """:class:`IDABaseline` with the residual and its Jacobian written in plain
+    Python/NumPy (``_common.NumpyDAE``: by hand for the sleigh, SymPy-generated for the
+    falling disk) instead of AOT-compiled JAX: no XLA dispatch per callback, as a user of
+    IDA would write it. Same tolerances and the same exclusion of λ from the error test."""
+
+    def __init__(self, dae):  # noqa: D107  (IDABaseline.__init__ builds JAX functions: not called)
+        self.dae, self.n, self.m = dae, dae.n, dae.m
+        self.N = 2 * dae.n + dae.m
+        self._dres_dyp = np.diag(np.r_[np.ones(2 * dae.n), np.zeros(dae.m)])
+
+    def resfn(self, t, y, yp, out):
+        out[:] = self.dae.res(t, y, yp)
+
+    def jacfn(self, t, y, yp, res, cj, JJ):
+        JJ[:, :] = self.dae.jac_y(t, y) + cj * self._dres_dyp
+
+    def consistent_yp(self, t0, q0, p0, lam0):
+        y = np.r_[q0, p0, lam0].astype(float)
+        r = self.dae.res(float(t0), y, np.zeros(self.N))  # = [−f, −g, φ] at y' = 0
+        return np.r_[-r[:2 * self.n], np.zeros(self.m)]
 
 
 @dataclass
