@@ -48,6 +48,16 @@ def _check_functions(problem, fields: tuple[tuple[str, str], ...]) -> None:
                 f"{cls}: {name} must be a function {signature}; got {type(fn).__name__} {text}. "
                 "Pass the function itself (not its value at some point)."
             )
+    optional = getattr(problem, "_optional_functions", ())
+    for name, signature in optional:
+        fn = getattr(problem, name)
+        if fn is not None and not callable(fn):
+            text = repr(fn)
+            text = text if len(text) <= 60 else text[:57] + "..."
+            raise ProblemDefinitionError(
+                f"{cls}: {name} must be a function {signature} or None (no such constraints); got "
+                f"{type(fn).__name__} {text}. Pass the function itself (not its value at some point)."
+            )
     if not isinstance(problem.name, str):
         raise ProblemDefinitionError(
             f"{cls}: name must be a string; got {type(problem.name).__name__} {problem.name!r} "
@@ -65,6 +75,12 @@ class PartitionedDAE:
 
     with :math:`q, p ∈ R^n`, :math:`λ ∈ R^m` and :math:`D_p φ \, D_λ g` (m×m) invertible.
 
+    Holonomic position constraints :math:`ψ(t, q) = 0` (k of them) whose velocity form
+    :math:`ψ_q f + ψ_t = 0` is among the rows of φ can be given as ``position_constraint``:
+    the integrator then projects every step's end point onto :math:`ψ = 0` and back onto
+    :math:`φ = 0` (see :mod:`lobattodae._projection`), so that both hold to round-off at every
+    step point, with the method's orders unchanged.
+
     Parameters
     ----------
     f : callable
@@ -75,12 +91,22 @@ class PartitionedDAE:
         ``phi(t, q, p, args) -> (m,)``.
     name : str, optional
         Used in messages and plots.
+    position_constraint : callable, optional
+        ``psi(t, q, args) -> (k,)``, holonomic constraints ``ψ(t, q) = 0`` kept exactly by a
+        projection after each step (None, the default: no projection, no cost). φ must
+        contain their velocity form ``ψ_q f + ψ_t`` and g the forces ``ψ_qᵀ λ`` (as every
+        :func:`lobattodae.mechanics.from_lagrangian` model with ``holonomic=[...]`` does);
+        the initial q0 must satisfy ψ.
     """
 
     f: Callable[..., Any] | None = None
     g: Callable[..., Any] | None = None
     phi: Callable[..., Any] | None = None
     name: str = "PartitionedDAE"
+    position_constraint: Callable[..., Any] | None = None
+
+    #: Optional functions (None allowed), checked by ``_check_functions`` when given.
+    _optional_functions = (("position_constraint", "psi(t, q, args) -> (k,)"),)
 
     def __post_init__(self):
         _check_functions(

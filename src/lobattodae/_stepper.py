@@ -18,6 +18,7 @@ import jax.numpy as jnp
 from . import _stage_equations as se
 from ._newton import JacobianCache, NewtonOptions, empty_jacobian_cache, implicit_root, newton_solve
 from ._problem import consistent_lambda
+from ._projection import project_step_end
 from ._results import Result
 from ._tableau import LobattoPair, lobatto_pair
 from ._dense import DenseStep
@@ -98,6 +99,11 @@ class LobattoIIIAIIIB:
     momenta ``p̃_i``, IIIB for ``P_i``, ``φ(t_i, Q_i, p̃_i) = 0`` for i = 2..s, so that
     ``φ(t_1, q_1, p_1) = 0`` at every step point. Global orders on a fixed interval (the
     paper's Corollary): q, p ``h^(2s-2)``; λ ``h^s`` for even s and ``h^(s-1)`` for odd s.
+
+    A problem with holonomic constraints ``position_constraint = ψ`` has every step's end
+    point projected onto ``ψ(t_1, q_1) = 0`` and ``φ(t_1, q_1, p_1) = 0``
+    (:mod:`lobattodae._projection`): both hold to round-off, the orders of q and p are kept,
+    but the step is then not symmetric. Without ψ nothing is added to the step.
 
     Newton works on ``Z_j = h Λ_j`` with a structured Jacobian whose inverse is reused across
     iterations and steps (refreshed when the contraction slows or h changes by more than
@@ -230,6 +236,11 @@ class LobattoIIIAIIIB:
             ``n_jacobians``, ``drift`` (‖λ_1 − λ(t_1, q_1, p_1)‖∞), ``resync``, ``error``
             (the local error estimate below) and ``dense`` (the continuous extension).
 
+        With a ``position_constraint`` ψ, ``(q1, p1)`` is the projected end point
+        (:func:`~lobattodae._projection.project_step_end`; λ1 is the step's own), computed
+        before λ(t_1, q_1, p_1) and differentiated with the step; the error estimate and the
+        dense output are those of the unprojected step.
+
         The error estimate is the difference between the step and the embedded formula
         ``q̂_1 = q_0 + h Σ_j b̂_j V_j``, ``p̂_1 = p_0 + h Σ_j b̂_j W_j`` with weights
         ``b̂ = b - e`` exact for polynomials of degree s - 2
@@ -266,6 +277,7 @@ class LobattoIIIAIIIB:
         jacobian = functools.partial(jac_fn, problem, pair, layout)
         x, ninfo, cache = newton_solve(residual, jacobian, x0, params, cache, self.newton)
         h_jac = jnp.where(ninfo.n_jacobians > 0, h, state.h_jacobian)
+        position_constraint = getattr(problem, "position_constraint", None) is not None  # static
 
         @jax.checkpoint
         def complete(x, params):
@@ -275,6 +287,8 @@ class LobattoIIIAIIIB:
             x = implicit_root(residual, jacobian, x, params)
             stages = se.stage_values(problem, pair, layout, x, params)
             q1, p1, lam1 = se.step_values(pair, params, stages)
+            if position_constraint:  # ψ(t_1, q_1) = 0 and φ(t_1, q_1, p_1) = 0 by projection
+                q1, p1 = project_step_end(problem, params.t0 + params.h, q1, p1, lam1, params.args)
             lam_hidden = consistent_lambda(problem, params.t0 + params.h, q1, p1, lam1, params.args, iterations=1)
             return stages, q1, p1, lam1, lam_hidden
 

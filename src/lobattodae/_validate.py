@@ -429,7 +429,53 @@ def _check_output_shapes(problem, n: int, t, q, p, args) -> int:
     _shape_of(problem.f, "f(t, q, p, args)", (n,), t, q, p, args)
     lam = jax.ShapeDtypeStruct((m,), jnp.float64)
     _shape_of(problem.g, "g(t, q, p, lam, args)", (n,), t, q, p, lam, args)
+    _check_position_constraint_shape(problem, m, t, q, args)
     return m
+
+
+def _check_position_constraint_shape(problem, m: int, t, q, args) -> None:
+    """ψ = ``position_constraint(t, q, args)``, when the problem has one, must return (k,) with
+    1 ≤ k ≤ m: each holonomic constraint has its velocity form among the m rows of φ."""
+    psi = getattr(problem, "position_constraint", None)
+    if psi is None:
+        return
+    name = "position_constraint(t, q, args)"
+    if not callable(psi):
+        raise ProblemDefinitionError(
+            f"{name} must be a function psi(t, q, args) -> (k,) or None; got {type(psi).__name__} {_short(psi)}. "
+            "Pass the function itself."
+        )
+    shape = _shape_of(psi, name, None, t, q, args).shape
+    if len(shape) != 1 or not 1 <= shape[0] <= m:
+        raise ShapeError(
+            f"{name} must return a 1-D array of shape (k,), one entry per holonomic constraint ψ_i(t, q) = 0, "
+            f"with 1 ≤ k ≤ m = {m} (the velocity form ψ_q f + ψ_t of each is a row of phi); it returned shape "
+            f"{shape}. Return jnp.array([psi_1, ...]) (jnp.atleast_1d for a single constraint), or pass "
+            "position_constraint=None."
+        )
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _position_residual(problem, t, q, args):
+    return problem.position_constraint(t, q, args)
+
+
+def _check_position_constraint(problem, t0, q0, args, tol, scale) -> None:
+    """q0 must satisfy the holonomic constraints ψ(t0, q0) = 0: the steps keep ψ at its
+    initial value's manifold by projection, they do not move an inconsistent q0 onto it."""
+    if getattr(problem, "position_constraint", None) is None:
+        return
+    try:
+        psi0 = np.asarray(_position_residual(problem, t0, q0, args))
+    except Exception as exc:  # re-raised with context: the user's function failed
+        raise _function_error("position_constraint(t, q, args)", exc) from exc
+    norm = float(np.max(np.abs(psi0)))
+    if not norm <= tol * scale:
+        raise InconsistentInitialValuesError(
+            f"the initial position violates the holonomic constraint: ‖ψ(t0, q0)‖∞ = {norm:.3e} > "
+            f"{tol:.1e}·(1 + ‖q0‖∞ + ‖p0‖∞) (ψ = {psi0}). Fix q0 so that position_constraint(t0, q0, args) = 0 "
+            "(project_initial=True corrects p0 only)."
+        )
 
 
 @functools.lru_cache(maxsize=256)
@@ -646,6 +692,7 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
     lam = jnp.zeros(m) if lam0 is None else jnp.asarray(lam0)
 
     scale = 1.0 + float(np.max(np.abs(p0))) + float(np.max(np.abs(q0)))
+    _check_position_constraint(problem, t0j, qj, args, tol, scale)
     phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, qj, pj, lam, args))
     _check_finite_at_start(phi0, r, jac, lam0 is not None)
     phi_norm = float(np.max(np.abs(phi0)))

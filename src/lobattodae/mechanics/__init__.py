@@ -19,9 +19,11 @@ r"""Modelling front end: constrained Lagrangian systems written in SymPy, integr
 
 The Lagrangian must be quadratic in the velocities (``½ q̇ᵀM q̇ + aᵀq̇ − V``, ``M``
 positive definite), the constraints affine in them (``μ q̇ + ν = 0``, possibly
-time-dependent). Holonomic constraints ``ψ(t, q) = 0`` are kept at the velocity level only;
-``ψ`` drifts by the integration error (:meth:`LagrangianModel.holonomic_residual`). See
-``docs/mechanics.md``.
+time-dependent). Holonomic constraints ``ψ(t, q) = 0`` are kept at the velocity level as
+rows of φ (index 2) and at the position level by projecting every step's end point onto
+``ψ = 0`` and ``φ = 0`` (``LagrangianDAE.position_constraint``): both hold to round-off at
+every step point, the orders of q and p are unchanged, the projected step is not symmetric
+(:meth:`LagrangianModel.holonomic_residual` evaluates ψ). See ``docs/mechanics.md``.
 
 Public names: :func:`from_lagrangian`, :func:`from_lagranges_method`,
 :class:`LagrangianModel`, :class:`LagrangianDAE`, :class:`SymbolicParts` and the verified
@@ -37,6 +39,7 @@ except ImportError as _exc:  # pragma: no cover - depends on the installation
 
 
 from . import _systems as systems
+from ._kane import from_kanes_method, from_system
 from ._model import (
     LagrangianDAE,
     LagrangianModel,
@@ -49,7 +52,9 @@ __all__ = [
     "LagrangianDAE",
     "LagrangianModel",
     "SymbolicParts",
+    "from_kanes_method",
     "from_lagrangian",
     "from_lagranges_method",
+    "from_system",
     "systems",
 ]

@@ -61,7 +61,9 @@ class LagrangianDAE(PartitionedDAE):
     ``f``, ``g``, ``phi`` as in :class:`~lobattodae.PartitionedDAE`; ``f_and_g`` evaluates
     both with one linear solve (used by the integrator), ``hamiltonian(t, q, p, args)`` is
     the energy ``pᵀq̇ − L`` and ``mass_matrix(t, q, args)`` the matrix ``M`` (checked to be
-    symmetric positive definite when a solve starts). Hashed by identity, like every problem.
+    symmetric positive definite when a solve starts). ``position_constraint(t, q, args)`` is
+    ``ψ`` of the holonomic constraints (None without them): the integrator keeps ``ψ = 0`` to
+    round-off by projecting every step's end point. Hashed by identity, like every problem.
     """
 
     f_and_g: Callable[..., Any] | None = None
@@ -269,7 +271,7 @@ class LagrangianModel:
         The names of the free symbols; :meth:`args` needs a value for each.
     constraint_labels : tuple of str
         One per multiplier ``λ_j``: the nonholonomic constraints, then the holonomic ones
-        (kept at the velocity level ``ψ_q q̇ + ψ_t = 0``).
+        (rows ``ψ_q q̇ + ψ_t = 0`` of φ; ψ itself is kept by projection).
     n, m : int
         Number of coordinates and of constraints (multipliers).
     n_holonomic : int
@@ -360,6 +362,7 @@ class LagrangianModel:
             f_and_g=fns["f_and_g"],
             hamiltonian=fns["hamiltonian"],
             mass_matrix=fns["mass_matrix"],
+            position_constraint=fns["holonomic"] if self.n_holonomic else None,
         )
         self._jit = {key: jax.jit(fn) for key, fn in fns.items()}
         self._vmapped = {}
@@ -721,9 +724,12 @@ def from_lagrangian(
         velocities: ``c = μ(t, q) q̇ + ν(t, q)``.
     holonomic : list or dict, optional
         Position constraints ``ψ(t, q) = 0``. They are differentiated once and kept at the
-        velocity level, ``ψ_q q̇ + ψ_t = 0``, exactly; **ψ itself is kept only to the
-        integration error** (it drifts): monitor it with
-        :meth:`LagrangianModel.holonomic_residual`.
+        velocity level, ``ψ_q q̇ + ψ_t = 0``, as rows of φ (index 2), and ψ itself is passed
+        to the problem as ``position_constraint``: every step's end point is projected onto
+        ``ψ = 0`` (in the kinetic metric, ``q ← q + M⁻¹ψ_qᵀκ``) and back onto ``φ = 0``, so
+        both hold to round-off at every step point with the orders of q and p unchanged (the
+        projected step is not symmetric; see ``docs/mechanics.md``). q0 must satisfy ψ
+        (:meth:`LagrangianModel.check`); :meth:`LagrangianModel.holonomic_residual` evaluates ψ.
     forces : list or dict, optional
         Generalized (non-conservative) forces ``F_i(t, q, q̇)``, one per coordinate (a dict
         ``{coordinate: force}`` may leave out zeros); inputs as explicit functions of ``t``.
@@ -912,7 +918,7 @@ def from_lagranges_method(method, *, name: str | None = None, defaults: Mapping 
     r"""Build a :class:`LagrangianModel` from a :class:`sympy.physics.mechanics.LagrangesMethod`.
 
     Uses its Lagrangian, coordinates, holonomic constraints (``hol_coneqs``, kept at the
-    velocity level as in :func:`from_lagrangian`), nonholonomic constraints
+    velocity and position levels as in :func:`from_lagrangian`), nonholonomic constraints
     (``nonhol_coneqs``) and its ``forcelist`` (generalized forces
     ``F_i = Σ ∂v/∂q̇_i · force`` in the inertial ``frame``, which must then be given).
 
@@ -922,18 +928,16 @@ def from_lagranges_method(method, *, name: str | None = None, defaults: Mapping 
     Raises
     ------
     LobattoDAEInputError
-        For a ``KanesMethod`` (not supported: pass its Lagrangian to :func:`from_lagrangian`)
-        or anything else that is not a ``LagrangesMethod``.
+        For anything that is not a ``LagrangesMethod`` (a ``KanesMethod`` is pointed to
+        :func:`~lobattodae.mechanics.from_kanes_method`).
     """
     from sympy.physics.mechanics import KanesMethod, LagrangesMethod, Point, ReferenceFrame
     from sympy.physics.vector import dynamicsymbols
 
     if isinstance(method, KanesMethod):
         raise _err(
-            "KanesMethod is not supported yet: lobattodae.mechanics needs a Lagrangian in the "
-            "generalized coordinates. Pass L = T − V (e.g. sympy.physics.mechanics.Lagrangian(N, "
-            "*bodies) minus the potential energy), the coordinates and the constraints to "
-            "from_lagrangian(...), or build a LagrangesMethod."
+            "from_lagranges_method got a KanesMethod: convert it with mechanics.from_kanes_method(kane) "
+            "(or a System with mechanics.from_system(system))."
         )
     if not isinstance(method, LagrangesMethod):
         raise _err(

@@ -18,6 +18,7 @@ from sympy.physics.mechanics import dynamicsymbols
 from ._model import LagrangianModel, from_lagrangian
 
 __all__ = [
+    "cartesian_double_pendulum",
     "cartesian_pendulum",
     "chaplygin_sleigh",
     "differential_drive",
@@ -174,12 +175,35 @@ def cartesian_pendulum() -> LagrangianModel:
     r"""A planar pendulum in Cartesian coordinates, with a holonomic constraint.
 
     ``q = (x, y)`` (bob), ``L = ½ m (ẋ² + ẏ²) − m g y``, ``ψ = x² + y² − ℓ² = 0``. The
-    integrator keeps ``ψ̇ = 2 x ẋ + 2 y ẏ = 0`` exactly and ``ψ`` to the integration error
-    (see ``holonomic_residual``). With ``x = ℓ sin θ``, ``y = −ℓ cos θ``:
-    ``θ̈ = −(g/ℓ) sin θ``. Parameters ``m, g, l`` (defaults 1, 9.81, 1).
+    integrator keeps ``ψ̇ = 2 x ẋ + 2 y ẏ = 0`` (a row of φ) and, by projecting every step's
+    end point, ``ψ`` itself to round-off (see ``holonomic_residual``). With
+    ``x = ℓ sin θ``, ``y = −ℓ cos θ``: ``θ̈ = −(g/ℓ) sin θ``. Parameters ``m, g, l``
+    (defaults 1, 9.81, 1).
     """
     x, y = dynamicsymbols("x y")
     m, g, ell = sp.symbols("m g l")
     L = sp.Rational(1, 2) * m * (x.diff(T) ** 2 + y.diff(T) ** 2) - m * g * y
     return from_lagrangian(L, [x, y], T, holonomic=[x**2 + y**2 - ell**2], name="Cartesian pendulum",
                            defaults={"m": 1.0, "g": 9.81, "l": 1.0})
+
+
+@functools.lru_cache(maxsize=None)
+def cartesian_double_pendulum() -> LagrangianModel:
+    r"""A planar double pendulum in Cartesian coordinates, with two holonomic constraints.
+
+    ``q = (x1, y1, x2, y2)`` (the bobs, masses ``m1, m2``),
+    ``L = ½ m1 (ẋ1² + ẏ1²) + ½ m2 (ẋ2² + ẏ2²) − g (m1 y1 + m2 y2)``, rods
+    ``ψ1 = x1² + y1² − ℓ1² = 0``, ``ψ2 = (x2 − x1)² + (y2 − y1)² − ℓ2² = 0``, both kept to
+    round-off (as in :func:`cartesian_pendulum`). With ``x1 = ℓ1 sin θ1``,
+    ``y1 = −ℓ1 cos θ1``, ``x2 = x1 + ℓ2 sin θ2``, ``y2 = y1 − ℓ2 cos θ2`` it is the classical
+    double pendulum in the angles (a chaotic system for large energies). Parameters
+    ``m1, m2, g, l1, l2`` (defaults 1, 1, 9.81, 1, 1).
+    """
+    x1, y1, x2, y2 = dynamicsymbols("x1 y1 x2 y2")
+    m1, m2, g, l1, l2 = sp.symbols("m1 m2 g l1 l2")
+    d = {c: c.diff(T) for c in (x1, y1, x2, y2)}
+    L = (sp.Rational(1, 2) * m1 * (d[x1] ** 2 + d[y1] ** 2) + sp.Rational(1, 2) * m2 * (d[x2] ** 2 + d[y2] ** 2)
+         - g * (m1 * y1 + m2 * y2))
+    rods = {"rod 1": x1**2 + y1**2 - l1**2, "rod 2": (x2 - x1) ** 2 + (y2 - y1) ** 2 - l2**2}
+    return from_lagrangian(L, [x1, y1, x2, y2], T, holonomic=rods, name="Cartesian double pendulum",
+                           defaults={"m1": 1.0, "m2": 1.0, "g": 9.81, "l1": 1.0, "l2": 1.0})
