@@ -22,6 +22,7 @@ __all__ = [
     "cartesian_pendulum",
     "chaplygin_sleigh",
     "differential_drive",
+    "falling_disk",
     "knife_edge",
     "turntable_ball",
     "turntable_ball_centre",
@@ -60,6 +61,45 @@ def knife_edge() -> LagrangianModel:
     c = -sp.sin(th) * x.diff(T) + sp.cos(th) * y.diff(T)
     return from_lagrangian(L, [x, y, th], T, nonholonomic=[c], name="knife edge (Lagrangian)",
                            defaults={"m": 1.0, "J": 1.0, "g": 1.0})
+
+
+@functools.lru_cache(maxsize=None)
+def falling_disk() -> LagrangianModel:
+    r"""A thin disk rolling without slipping on a plane, free to tilt, derived from its geometry.
+
+    The same system as :func:`lobattodae.examples.falling_rolling_disk` (hand-written there as a
+    ``MechanicalSystem``), derived here with ``sympy.physics.mechanics`` vectors: ``q = (x, y,
+    θ, φ, ψ)`` (contact point, tilt from the vertical, heading, spin). Frames: ``A`` turned by
+    ``φ`` about the vertical, ``B`` tilted by ``−θ`` about ``A.x`` (the rolling direction), the
+    disk turned by ``ψ`` about its axle ``B.y``; centre ``C = P + R B.z`` above the contact
+    point ``P = (x, y, 0)``.
+
+    ``L = ½ m |v_C|² + ½ (I1 (ω·B.x)² + I1 (ω·B.z)² + I3 (ω·B.y)²) − m g R cos θ``; rolling:
+    the material point of the disk at ``P`` has zero horizontal velocity,
+    ``ẋ − R cos φ ψ̇ = 0``, ``ẏ − R sin φ ψ̇ = 0``. Parameters ``m, R, g, I1, I3`` (defaults
+    1, 1, 1, 1/4, 1/2: a uniform thin disk, as the example).
+    """
+    from sympy.physics.mechanics import Point, ReferenceFrame
+
+    x, y, th, ph, ps = dynamicsymbols("x y theta phi psi")
+    m, R, g, I1, I3 = sp.symbols("m R g I1 I3")
+    ground = ReferenceFrame("N")
+    heading = ground.orientnew("A", "Axis", [ph, ground.z])
+    tilted = heading.orientnew("B", "Axis", [-th, heading.x])
+    disk = tilted.orientnew("D", "Axis", [ps, tilted.y])
+    origin = Point("O")
+    contact = origin.locatenew("P", x * ground.x + y * ground.y)
+    centre = contact.locatenew("C", R * tilted.z)
+    v = centre.pos_from(origin).dt(ground)
+    w = disk.ang_vel_in(ground)
+    kinetic = sp.Rational(1, 2) * (m * v.dot(v) + I1 * (w.dot(tilted.x) ** 2 + w.dot(tilted.z) ** 2)
+                                   + I3 * w.dot(tilted.y) ** 2)
+    potential = m * g * centre.pos_from(origin).dot(ground.z)
+    slip = v + w.cross(-R * tilted.z)  # velocity of the disk's material point at P
+    rolling = {"rolling x": slip.dot(ground.x), "rolling y": slip.dot(ground.y)}
+    return from_lagrangian(kinetic - potential, [x, y, th, ph, ps], T, nonholonomic=rolling,
+                           name="falling rolling disk (Lagrangian)",
+                           defaults={"m": 1.0, "R": 1.0, "g": 1.0, "I1": 0.25, "I3": 0.5})
 
 
 @functools.lru_cache(maxsize=None)
