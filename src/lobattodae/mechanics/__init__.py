@@ -26,7 +26,9 @@ every step point, the orders of q and p are unchanged, the projected step is not
 (:meth:`LagrangianModel.holonomic_residual` evaluates ψ). See ``docs/mechanics.md``.
 
 Public names: :func:`from_lagrangian`, :func:`from_lagranges_method`,
-:class:`LagrangianModel`, :class:`LagrangianDAE`, :class:`SymbolicParts` and the verified
+:func:`from_kanes_method`, :func:`from_system`, :class:`LagrangianModel`,
+:class:`LagrangianDAE`, :class:`SymbolicParts`; rigid bodies oriented by unit quaternions
+(:func:`quaternion_body` and its numeric helpers, ``docs/rigid-bodies.md``); and the verified
 systems in :mod:`lobattodae.mechanics.systems`.
 """
 
@@ -40,6 +42,16 @@ except ImportError as _exc:  # pragma: no cover - depends on the installation
 
 from . import _systems as systems
 from ._kane import from_kanes_method, from_system
+from ._rigid import (
+    QuaternionBody,
+    body_angular_velocity,
+    quaternion_body,
+    quaternion_from_axis_angle,
+    quaternion_matrices,
+    quaternion_multiply,
+    quaternion_rates,
+    rotation_matrix,
+)
 from ._model import (
     LagrangianDAE,
     LagrangianModel,
@@ -51,10 +63,18 @@ from ._model import (
 __all__ = [
     "LagrangianDAE",
     "LagrangianModel",
+    "QuaternionBody",
     "SymbolicParts",
+    "body_angular_velocity",
     "from_kanes_method",
     "from_lagrangian",
     "from_lagranges_method",
     "from_system",
+    "quaternion_body",
+    "quaternion_from_axis_angle",
+    "quaternion_matrices",
+    "quaternion_multiply",
+    "quaternion_rates",
+    "rotation_matrix",
     "systems",
 ]

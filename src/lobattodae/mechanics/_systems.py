@@ -16,14 +16,34 @@ import sympy as sp
 from sympy.physics.mechanics import dynamicsymbols
 
 from ._model import LagrangianModel, from_lagrangian
+from ._systems3d import (
+    RATTLEBACK_KANE_LEVINSON,
+    chaplygin_sphere,
+    chaplygin_sphere_state,
+    rattleback,
+    rattleback_contact,
+    rattleback_state,
+    suslov,
+    suslov_inertia,
+    suslov_state,
+)
 
 __all__ = [
+    "RATTLEBACK_KANE_LEVINSON",
     "cartesian_double_pendulum",
     "cartesian_pendulum",
     "chaplygin_sleigh",
+    "chaplygin_sphere",
+    "chaplygin_sphere_state",
     "differential_drive",
     "falling_disk",
     "knife_edge",
+    "rattleback",
+    "rattleback_contact",
+    "rattleback_state",
+    "suslov",
+    "suslov_inertia",
+    "suslov_state",
     "turntable_ball",
     "turntable_ball_centre",
 ]
