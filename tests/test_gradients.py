@@ -40,9 +40,9 @@ def _central_differences(fn, x, step=FD_STEP):
     return np.stack(cols, axis=1)
 
 
-#: a few cases in the default run (s = 4 is in the adaptive test); the whole grid, three
+#: a few cases in the default run (s = 4 is in the adaptive test, s = 3 with a projection in test_holonomic); the whole grid, three
 #: examples × s = 2..5, under -m slow
-DEFAULT_CASES = {("sleigh", 2), ("sleigh", 3), ("knife-edge", 5)}
+DEFAULT_CASES = {("sleigh", 2), ("knife-edge", 5)}  # s = 3: tests/test_holonomic.py (pendulum)
 GRID = [
     pytest.param(name, s, marks=() if (name, s) in DEFAULT_CASES else pytest.mark.slow)
     for name in EXAMPLES for s in (2, 3, 4, 5)
