@@ -28,8 +28,10 @@ every step point, the orders of q and p are unchanged, the projected step is not
 Public names: :func:`from_lagrangian`, :func:`from_lagranges_method`,
 :func:`from_kanes_method`, :func:`from_system`, :class:`LagrangianModel`,
 :class:`LagrangianDAE`, :class:`SymbolicParts`; rigid bodies oriented by unit quaternions
-(:func:`quaternion_body` and its numeric helpers, ``docs/rigid-bodies.md``); and the verified
-systems in :mod:`lobattodae.mechanics.systems`.
+(:func:`quaternion_body` and its numeric helpers, ``docs/rigid-bodies.md``); the Whipple
+bicycle benchmark (:mod:`lobattodae.mechanics.bicycle`: model, linearisation, eigenvalues,
+weave and capsize speeds, ``docs/bicycle.md``); and the verified systems in
+:mod:`lobattodae.mechanics.systems`.
 """
 
 try:
@@ -40,6 +42,7 @@ except ImportError as _exc:  # pragma: no cover - depends on the installation
     ) from _exc
 
 
+from . import _bicycle as bicycle
 from . import _systems as systems
 from ._kane import from_kanes_method, from_system
 from ._rigid import (
@@ -65,6 +68,7 @@ __all__ = [
     "LagrangianModel",
     "QuaternionBody",
     "SymbolicParts",
+    "bicycle",
     "body_angular_velocity",
     "from_kanes_method",
     "from_lagrangian",

@@ -15,6 +15,7 @@ import numpy as np
 import sympy as sp
 from sympy.physics.mechanics import dynamicsymbols
 
+from ._bicycle import whipple_bicycle
 from ._model import LagrangianModel, from_lagrangian
 from ._systems3d import (
     RATTLEBACK_KANE_LEVINSON,
@@ -46,6 +47,7 @@ __all__ = [
     "suslov_state",
     "turntable_ball",
     "turntable_ball_centre",
+    "whipple_bicycle",
 ]
 
 T = dynamicsymbols._t
