@@ -184,6 +184,43 @@ def test_differential_drive_with_time_dependent_torques_matches_reduced_ode():
     assert 3.5 < math.log2(errors[0] / errors[1]) < 4.6, errors
 
 
+def test_feedback_torque_on_the_sleigh_matches_its_reduced_ode():
+    """A state-feedback input (PD heading control τ = −kp (θ − θr) − kd θ̇, a generalized force
+    in θ) against the sleigh's reduced ODE in (x, y, θ, u, ω), derived by hand: the velocity of
+    the centre of mass is u along the heading and a ω across it, m u̇ = m a ω²,
+    (I + m a²) ω̇ = −m a u ω + τ. The heading settles on θr; the error falls like h⁴."""
+    x, y, th = dynamicsymbols("x y theta")
+    m, inertia, a, kp, kd, thr = sp.symbols("m I a k_p k_d theta_r")
+    L = m * (x.diff(T) ** 2 + y.diff(T) ** 2) / 2 + inertia * th.diff(T) ** 2 / 2
+    blade = -sp.sin(th) * x.diff(T) + sp.cos(th) * y.diff(T) - a * th.diff(T)
+    model = mechanics.from_lagrangian(L, [x, y, th], T, nonholonomic=[blade],
+                                      forces={th: -kp * (th - thr) - kd * th.diff(T)}, name="steered sleigh")
+    par = dict(m=1.3, I=0.6, a=0.4, k_p=2.0, k_d=1.5, theta_r=1.0)
+    args = model.args(**par)
+    u0, om0 = 0.8, 0.0
+    q0 = np.zeros(3)
+    qd0 = np.array([u0, par["a"] * om0, om0])
+    p0 = model.momenta(0.0, q0, qd0, args)
+
+    def reduced(t, s):
+        _, _, theta, u, om = s
+        tau = -par["k_p"] * (theta - par["theta_r"]) - par["k_d"] * om
+        return [u * math.cos(theta) - par["a"] * om * math.sin(theta), u * math.sin(theta) + par["a"] * om * math.cos(theta),
+                om, par["a"] * om**2, (-par["m"] * par["a"] * u * om + tau) / (par["I"] + par["m"] * par["a"] ** 2)]
+
+    t_end = 8.0
+    ref = solve_ivp(reduced, (0.0, t_end), [0.0, 0.0, 0.0, u0, om0], method="DOP853", rtol=1e-12, atol=1e-12,
+                    dense_output=True)
+    errors = []
+    for n in (80, 160):
+        sol = _solve(model, (0.0, t_end), q0, p0, n, args)
+        errors.append(_max(sol.q - ref.sol(sol.t).T[:, :3]))
+        assert _max(model.constraint_residual(sol.t, sol.q, sol.p, args)) < 1e-13
+    assert errors[1] < 1e-6, errors
+    assert 3.5 < math.log2(errors[0] / errors[1]) < 4.6, errors
+    assert abs(sol.q[-1, 2] - par["theta_r"]) < 0.02  # the controller has turned the sleigh
+
+
 # ----------------------------------------------------------------------------- 4. pendulum
 def test_cartesian_pendulum_against_the_angle_ode_with_exact_holonomic_constraint():
     """ψ = x² + y² − ℓ² is passed to the problem (``position_constraint``) and kept to round-off

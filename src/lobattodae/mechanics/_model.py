@@ -526,8 +526,9 @@ class LagrangianModel:
     def holonomic_residual(self, t, q, args) -> np.ndarray:
         """``ψ(t, q)`` of the holonomic constraints, shape (k,) or (N, k) along a trajectory.
 
-        The integrator keeps only the differentiated constraint ``ψ_q q̇ + ψ_t = 0`` exactly;
-        ``ψ`` itself drifts by the integration error: monitor it with this.
+        The integrator keeps ``ψ_q q̇ + ψ_t = 0`` (a row of φ) and, by projecting every step's
+        end point, ψ itself to round-off at the step points; between them (dense output) ψ is
+        the interpolation error.
         """
         return self._eval("holonomic", t, (q,), (("q", self.n),), args)
 
