@@ -26,7 +26,7 @@ import numpy as np
 import sympy as sp
 
 from .._errors import LobattoDAEInputError
-from ._model import LagrangianModel, from_lagrangian
+from ._model import LagrangianModel, from_lagrangian, load_forces
 
 __all__ = ["from_kanes_method", "from_system"]
 
@@ -135,26 +135,6 @@ def _speeds_in_rates(kind, q, u, kdes, t):
     return {uk: sp.simplify(expr) if sp.count_ops(expr) <= 60 else expr for uk, expr in zip(u, solved)}
 
 
-def _generalized_forces(kind, frame, loads, to_rates, qdots):
-    r"""``F_i = Σ (∂v_P/∂q̇_i)·F + (∂ω_B/∂q̇_i)·τ`` over the loads, in the inertial frame."""
-    from sympy.physics.mechanics import Point, ReferenceFrame
-
-    forces = [sp.S.Zero] * len(qdots)
-    for load in loads or []:
-        obj, vec = load[0], load[1]
-        if isinstance(obj, Point):
-            vel = obj.vel(frame)
-        elif isinstance(obj, ReferenceFrame):
-            vel = obj.ang_vel_in(frame)
-        else:
-            raise _err(f"the {kind}'s load ({obj!r}, ...): the first item must be a Point or a ReferenceFrame.")
-        v = vel.to_matrix(frame).xreplace(to_rates)
-        f = vec.to_matrix(frame)
-        for i, qd in enumerate(qdots):
-            forces[i] += (v.diff(qd).T * f)[0, 0]
-    return forces
-
-
 def _energies(kind, frame, bodies, to_rates):
     """Σ kinetic energies (in the coordinate rates) and Σ potential energies of the bodies."""
     if not bodies:
@@ -202,7 +182,7 @@ def _convert(kind, frame, q, u, kdes, bodies, loads, holonomic, velocity, *, nam
     qdots = [c.diff(t) for c in q]
     to_rates = _speeds_in_rates(kind, q, u, kdes, t)
     kinetic, potential = _energies(kind, frame, bodies, to_rates)
-    forces = _generalized_forces(kind, frame, loads, to_rates, qdots)
+    forces = load_forces(kind, frame, loads, qdots, to_rates)
     nonholonomic = [sp.sympify(c).xreplace(to_rates) for c in velocity]
     if drop_dependent and holonomic and nonholonomic:
         differentiated = [sp.diff(psi, t) for psi in holonomic]

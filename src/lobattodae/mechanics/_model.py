@@ -914,6 +914,28 @@ def from_lagrangian(
     )
 
 
+def load_forces(kind: str, frame, loads, qdots, to_rates=None) -> list:
+    r"""``F_i = Σ (∂v_P/∂q̇_i)·F + (∂ω_B/∂q̇_i)·τ`` over ``loads`` (``(Point, force)`` or
+    ``(ReferenceFrame, torque)`` pairs), velocities in the inertial ``frame``; ``to_rates``
+    substitutes speeds by their expressions in the coordinate rates (Kane-style models)."""
+    from sympy.physics.mechanics import Point, ReferenceFrame
+
+    forces = [sp.S.Zero] * len(qdots)
+    for load in loads or []:
+        obj, vec = load[0], load[1]
+        if isinstance(obj, Point):
+            vel = obj.vel(frame)
+        elif isinstance(obj, ReferenceFrame):
+            vel = obj.ang_vel_in(frame)
+        else:
+            raise _err(f"the {kind}'s load ({obj!r}, ...): the first item must be a Point or a ReferenceFrame.")
+        v = vel.to_matrix(frame).xreplace(to_rates or {})
+        f = vec.to_matrix(frame)
+        for i, qd in enumerate(qdots):
+            forces[i] += (v.diff(qd).T * f)[0, 0]
+    return forces
+
+
 def from_lagranges_method(method, *, name: str | None = None, defaults: Mapping | None = None,
                           simplify: bool = False) -> LagrangianModel:
     r"""Build a :class:`LagrangianModel` from a :class:`sympy.physics.mechanics.LagrangesMethod`.
@@ -932,7 +954,7 @@ def from_lagranges_method(method, *, name: str | None = None, defaults: Mapping 
         For anything that is not a ``LagrangesMethod`` (a ``KanesMethod`` is pointed to
         :func:`~lobattodae.mechanics.from_kanes_method`).
     """
-    from sympy.physics.mechanics import KanesMethod, LagrangesMethod, Point, ReferenceFrame
+    from sympy.physics.mechanics import KanesMethod, LagrangesMethod
     from sympy.physics.vector import dynamicsymbols
 
     if isinstance(method, KanesMethod):
@@ -960,18 +982,7 @@ def from_lagranges_method(method, *, name: str | None = None, defaults: Mapping 
                 "the LagrangesMethod has a forcelist but no inertial frame: create it with "
                 "LagrangesMethod(..., forcelist=..., frame=N)."
             )
-        forces = []
-        for qd in qdots:
-            total = sp.S.Zero
-            for obj, vec in flist:
-                if isinstance(obj, ReferenceFrame):
-                    vel = obj.ang_vel_in(frame)
-                elif isinstance(obj, Point):
-                    vel = obj.vel(frame)
-                else:
-                    raise _err(f"forcelist entry ({obj!r}, ...): the first item must be a Point or ReferenceFrame.")
-                total += vel.diff(qd, frame).dot(vec)
-            forces.append(total)
+        forces = load_forces("LagrangesMethod", frame, flist, qdots)
     return from_lagrangian(
         L, coords, t, nonholonomic=nonhol or None, holonomic=hol or None, forces=forces,
         name=name, defaults=defaults, simplify=simplify,
