@@ -429,3 +429,15 @@ def test_rattleback_spin_directions():
         assert norm < EXACT and phi < EXACT
     assert first_reversal[-5.0] < 3.0
     assert first_reversal[5.0] > 3 * first_reversal[-5.0]
+
+
+def test_bad_quaternion_bodies_are_refused_with_the_fix():
+    with pytest.raises(LobattoDAEInputError, match="3 principal moments or a 3×3 matrix"):
+        quaternion_body("Q", inertia=[1.0, 2.0])
+    with pytest.raises(LobattoDAEInputError, match="must be symmetric"):
+        quaternion_body("Q", inertia=sp.Matrix([[1, 0.1, 0], [0, 2, 0], [0, 0, 3]]))
+    with pytest.raises(LobattoDAEInputError, match="regularization must be positive"):
+        quaternion_body("Q", inertia=[1.0, 2.0, 3.0], regularization=0)
+    body = quaternion_body("Q", inertia=[1.0, 2.0, 3.0])
+    with pytest.raises(LobattoDAEInputError, match="'space' or 'body'"):
+        body.torque_forces([0, 0, 1], frame="world")

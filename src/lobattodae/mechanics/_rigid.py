@@ -66,6 +66,8 @@ import numpy as np
 import sympy as sp
 from sympy.physics.mechanics import dynamicsymbols
 
+from .._errors import LobattoDAEInputError
+
 __all__ = [
     "QuaternionBody",
     "quaternion_body",
@@ -166,7 +168,7 @@ class QuaternionBody(NamedTuple):
         elif frame == "body":
             omega = self.omega_body
         else:
-            raise ValueError(f"frame must be 'space' or 'body'; got {frame!r}")
+            raise LobattoDAEInputError(f"torque_forces: frame must be 'space' or 'body'; got {frame!r}.")
         jac = omega.jacobian(self.rates)  # 3×4 = 2 G or 2 E
         F = jac.T * tau
         return {c: F[i] for i, c in enumerate(self.coordinates)}
@@ -184,9 +186,14 @@ def _inertia_matrix(inertia, name):
         else:
             I = sp.Matrix(entries)
     if I.shape != (3, 3):
-        raise ValueError(f"inertia must be 3 principal moments or a 3×3 matrix; got shape {I.shape}")
+        raise LobattoDAEInputError(
+            f"quaternion_body({name!r}): inertia must be 3 principal moments or a 3×3 matrix; got shape {I.shape}."
+        )
     if (I - I.T).applyfunc(sp.simplify) != sp.zeros(3, 3):
-        raise ValueError("the inertia tensor must be symmetric")
+        raise LobattoDAEInputError(
+            f"quaternion_body({name!r}): the inertia tensor must be symmetric; got {sp.sstr(I)}. Use the same "
+            "product of inertia above and below the diagonal."
+        )
     return I
 
 
@@ -244,6 +251,12 @@ def quaternion_body(name: str = "Q", inertia=None, t=None, *, regularization=Non
     R, E, G = quaternion_matrices(coords)
     I = _inertia_matrix(inertia, name)
     J = sp.trace(I) / 3 if regularization is None else sp.sympify(regularization)
+    if J.is_number and not J > 0:
+        raise LobattoDAEInputError(
+            f"quaternion_body({name!r}): regularization must be positive (J > 0 makes the mass matrix positive "
+            f"definite; J between the smallest and largest principal moment keeps it well conditioned); got {J}. "
+            "Leave it out for tr(I)/3."
+        )
     w_b = 2 * E * Qd
     w_s = 2 * G * Qd
     w0 = 2 * (Q.T * Qd)[0, 0]
