@@ -12,7 +12,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["spd_solve", "small_solve", "UNROLL_MAX"]
+__all__ = ["spd_solve", "small_solve", "value_and_jacobian", "UNROLL_MAX"]
 
 #: Largest system solved by the unrolled code; larger ones go to LAPACK.
 UNROLL_MAX = 8
@@ -47,3 +47,15 @@ def small_solve(a: jax.Array, b: jax.Array) -> jax.Array:
         det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
         return jnp.stack([a[1, 1] * b[0] - a[0, 1] * b[1], a[0, 0] * b[1] - a[1, 0] * b[0]]) / det
     return jnp.linalg.solve(a, b)
+
+
+def value_and_jacobian(fn, x):
+    """``(fn(x), ∂fn/∂x)`` in one forward-mode pass (as many tangents as x has entries: the
+    small constraint and multiplier systems)."""
+
+    def both(xx):
+        r = fn(xx)
+        return r, r
+
+    jac, value = jax.jacfwd(both, has_aux=True)(x)
+    return value, jac

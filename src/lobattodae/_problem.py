@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from ._errors import ProblemDefinitionError
-from ._linalg import small_solve, spd_solve
+from ._linalg import small_solve, spd_solve, value_and_jacobian
 
 __all__ = [
     "PartitionedDAE",
@@ -34,9 +34,12 @@ def _check_functions(problem, fields: tuple[tuple[str, str], ...]) -> None:
     """
     cls = type(problem).__name__
     call = ", ".join(f"{name}=..." for name, _ in fields)
-    for name, signature in fields:
+    optional = getattr(problem, "_optional_functions", ())  # None allowed: no such constraints
+    for (name, signature), required in [(f, True) for f in fields] + [(f, False) for f in optional]:
         fn = getattr(problem, name)
         if fn is None:
+            if not required:
+                continue
             raise ProblemDefinitionError(
                 f"{cls} needs {name}, a function {signature}; it is missing. "
                 f"Construct it as {cls}({call})."
@@ -44,19 +47,10 @@ def _check_functions(problem, fields: tuple[tuple[str, str], ...]) -> None:
         if not callable(fn):
             text = repr(fn)
             text = text if len(text) <= 60 else text[:57] + "..."
+            alternative = "" if required else " or None (no such constraints)"
             raise ProblemDefinitionError(
-                f"{cls}: {name} must be a function {signature}; got {type(fn).__name__} {text}. "
+                f"{cls}: {name} must be a function {signature}{alternative}; got {type(fn).__name__} {text}. "
                 "Pass the function itself (not its value at some point)."
-            )
-    optional = getattr(problem, "_optional_functions", ())
-    for name, signature in optional:
-        fn = getattr(problem, name)
-        if fn is not None and not callable(fn):
-            text = repr(fn)
-            text = text if len(text) <= 60 else text[:57] + "..."
-            raise ProblemDefinitionError(
-                f"{cls}: {name} must be a function {signature} or None (no such constraints); got "
-                f"{type(fn).__name__} {text}. Pass the function itself (not its value at some point)."
             )
     if not isinstance(problem.name, str):
         raise ProblemDefinitionError(
@@ -267,13 +261,7 @@ def hidden_constraint(problem, t, q, p, lam, args=None):
 
 def _hidden_constraint_and_jacobian(problem, t, q, p, lam, args):
     """The hidden-constraint residual and its λ-Jacobian ``D_pφ·D_λg`` in one forward pass."""
-
-    def both(ll):
-        r = hidden_constraint(problem, t, q, p, ll, args)
-        return r, r
-
-    jac, r = jax.jacfwd(both, has_aux=True)(lam)
-    return r, jac
+    return value_and_jacobian(lambda ll: hidden_constraint(problem, t, q, p, ll, args), lam)
 
 
 def consistent_lambda(problem, t, q, p, lam_guess, args=None, iterations=3):

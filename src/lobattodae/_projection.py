@@ -48,23 +48,12 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ._linalg import small_solve
+from ._linalg import small_solve, value_and_jacobian
 
 __all__ = ["project_positions", "project_momenta_impulse", "project_step_end", "POSITION_NEWTON_ITERATIONS"]
 
 #: Newton steps for ``ψ(t_1, q̃_1 + D κ) = 0`` (quadratic convergence from an O(h^(2s-1)) start).
 POSITION_NEWTON_ITERATIONS = 3
-
-
-def _value_and_jacobian(fn, x):
-    """``fn(x)`` and its Jacobian in one forward pass (as many tangents as x has entries)."""
-
-    def both(xx):
-        r = fn(xx)
-        return r, r
-
-    jac, value = jax.jacfwd(both, has_aux=True)(x)
-    return value, jac
 
 
 def project_positions(problem, t, q, p, args, iterations=POSITION_NEWTON_ITERATIONS):
@@ -80,7 +69,7 @@ def project_positions(problem, t, q, p, args, iterations=POSITION_NEWTON_ITERATI
     direction = f_p(psi_q).T  # (n, k)
     kappa = jnp.zeros(psi_q.shape[0], q.dtype)
     for _ in range(iterations):  # unrolled: a fixed, small number of steps
-        residual, jac = _value_and_jacobian(lambda kk: psi(t, q + direction @ kk, args), kappa)
+        residual, jac = value_and_jacobian(lambda kk: psi(t, q + direction @ kk, args), kappa)
         kappa = kappa - small_solve(jac, residual)
     return q + direction @ kappa
 
@@ -89,7 +78,7 @@ def project_momenta_impulse(problem, t, q, p, lam, args):
     r"""``p_1 = p̃ − G (D_pφ G)⁻¹ φ(t, q, p̃)``, ``G = D_λ g(t, q, p̃, λ)`` (step 2 of the
     module docstring)."""
     impulse = jax.jacfwd(lambda ll: problem.g(t, q, p, ll, args))(lam)  # G (n, m)
-    phi, phi_g = _value_and_jacobian(lambda cc: problem.phi(t, q, p + impulse @ cc, args), jnp.zeros_like(lam))
+    phi, phi_g = value_and_jacobian(lambda cc: problem.phi(t, q, p + impulse @ cc, args), jnp.zeros_like(lam))
     return p - impulse @ small_solve(phi_g, phi)
 
 

@@ -435,16 +435,12 @@ def _check_output_shapes(problem, n: int, t, q, p, args) -> int:
 
 def _check_position_constraint_shape(problem, m: int, t, q, args) -> None:
     """ψ = ``position_constraint(t, q, args)``, when the problem has one, must return (k,) with
-    1 ≤ k ≤ m: each holonomic constraint has its velocity form among the m rows of φ."""
+    1 ≤ k ≤ m: each holonomic constraint has its velocity form among the m rows of φ (that it
+    is callable was checked when the problem was built)."""
     psi = getattr(problem, "position_constraint", None)
     if psi is None:
         return
     name = "position_constraint(t, q, args)"
-    if not callable(psi):
-        raise ProblemDefinitionError(
-            f"{name} must be a function psi(t, q, args) -> (k,) or None; got {type(psi).__name__} {_short(psi)}. "
-            "Pass the function itself."
-        )
     shape = _shape_of(psi, name, None, t, q, args).shape
     if len(shape) != 1 or not 1 <= shape[0] <= m:
         raise ShapeError(

@@ -25,14 +25,9 @@ from typing import Mapping
 import numpy as np
 import sympy as sp
 
-from .._errors import LobattoDAEInputError
-from ._model import LagrangianModel, from_lagrangian, load_forces
+from ._model import LagrangianModel, _err, from_lagrangian, load_forces
 
 __all__ = ["from_kanes_method", "from_system"]
-
-
-def _err(msg: str) -> LobattoDAEInputError:
-    return LobattoDAEInputError(msg)
 
 
 def from_kanes_method(method, *, name: str | None = None, defaults: Mapping | None = None,
