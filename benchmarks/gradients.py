@@ -6,8 +6,9 @@ values computed from parameters (``project_momenta``, ``consistent_lambda``); th
 ``Σ q_N²``, differentiated with respect to p0 (reverse mode). Times are the best of
 ``--repeats`` after compilation, measured in the same process one after the other, and the
 ratio grad/forward is what to read. Memory is XLA's temporary buffer size of the compiled
-gradient (``memory_analysis().temp_size_in_bytes``), with every step kept and with
-``checkpoints=√N`` segments. Writes ``benchmarks/results/gradients.json``.
+gradient (``memory_analysis().temp_size_in_bytes``). Two settings: the default
+``checkpoints="auto"`` (√N checkpointed segments for N ≥ 100) and ``checkpoints=None``
+(every step kept for the backward pass), each forward timed with its own setting. Writes ``benchmarks/results/gradients.json``.
 
     PYTHONPATH=src python benchmarks/gradients.py [--quick]
 """
@@ -25,6 +26,7 @@ import jax
 import jax.numpy as jnp
 
 import lobattodae as L
+from lobattodae._loop import resolve_checkpoints
 from lobattodae.examples import get_example
 
 CASES = (("falling-disk-general", 3, 0.01), ("falling-disk-general", 4, 0.02), ("sleigh", 3, 0.01), ("sleigh", 5, 0.05))
@@ -45,28 +47,32 @@ def measure(name: str, stages: int, h: float, n_steps: int, repeats: int) -> dic
     method = L.LobattoIIIAIIIB(stages=stages)
     q0 = jnp.asarray(ex.q0)
 
-    def loss(p, checkpoints=None):
+    def loss(p, checkpoints="auto"):
         p0 = L.project_momenta(ex.problem, 0.0, q0, p, ex.args)
         lam0 = L.consistent_lambda(ex.problem, 0.0, q0, p0, jnp.asarray(ex.lam0), ex.args)
         r = L.integrate(ex.problem, method, 0.0, h, n_steps, q0, p0, lam0, ex.args, checkpoints=checkpoints)
         return jnp.sum(r.q[-1] ** 2)
 
     p = jnp.asarray(ex.p0)
-    segments = max(1, int(round(math.sqrt(n_steps))))
-    forward = jax.jit(loss)
+    segments = resolve_checkpoints("auto", n_steps)
+    forward = jax.jit(loss)  # the default, checkpoints="auto"
+    forward_all = jax.jit(lambda x: loss(x, None))
     grad = jax.jit(jax.grad(loss))
-    grad_ck = jax.jit(jax.grad(lambda x: loss(x, segments)))
+    grad_all = jax.jit(jax.grad(lambda x: loss(x, None)))
     t_fwd = _best(forward, p, repeats)
+    t_fwd_all = _best(forward_all, p, repeats)
     t_grad = _best(grad, p, repeats)
-    t_ck = _best(grad_ck, p, repeats)
+    t_all = _best(grad_all, p, repeats)
     mem = grad.lower(p).compile().memory_analysis().temp_size_in_bytes
-    mem_ck = grad_ck.lower(p).compile().memory_analysis().temp_size_in_bytes
-    row = dict(example=name, stages=stages, h=h, n_steps=n_steps, forward_s=t_fwd, grad_s=t_grad,
-               grad_checkpointed_s=t_ck, segments=segments, ratio=t_grad / t_fwd, ratio_checkpointed=t_ck / t_fwd,
-               temp_bytes=mem, temp_bytes_checkpointed=mem_ck)
-    print(f"{name:22s} s={stages} N={n_steps:6d}  forward {t_fwd * 1e3:8.1f} ms  grad {t_grad * 1e3:8.1f} ms "
-          f"({t_grad / t_fwd:4.2f}x, {mem / n_steps:6.0f} B/step)  checkpoints={segments}: {t_ck * 1e3:8.1f} ms "
-          f"({t_ck / t_fwd:4.2f}x, {mem_ck / 1e6:6.2f} MB)", flush=True)
+    mem_all = grad_all.lower(p).compile().memory_analysis().temp_size_in_bytes
+    row = dict(example=name, stages=stages, h=h, n_steps=n_steps, segments=segments,
+               forward_s=t_fwd, forward_every_step_kept_s=t_fwd_all, grad_s=t_grad, grad_every_step_kept_s=t_all,
+               ratio=t_grad / t_fwd, ratio_every_step_kept=t_all / t_fwd_all,
+               temp_bytes=mem, temp_bytes_every_step_kept=mem_all)
+    print(f"{name:22s} s={stages} N={n_steps:6d}  default (checkpoints={segments}): forward {t_fwd * 1e3:7.1f} ms, "
+          f"grad {t_grad * 1e3:7.1f} ms ({t_grad / t_fwd:4.2f}x, {mem / 1e6:6.2f} MB)  |  every step kept: forward "
+          f"{t_fwd_all * 1e3:7.1f} ms, grad {t_all * 1e3:7.1f} ms ({t_all / t_fwd_all:4.2f}x, {mem_all / n_steps:6.0f} B/step)",
+          flush=True)
     return row
 
 

@@ -217,10 +217,36 @@ def test_projection_and_consistent_lambda_are_differentiable():
     np.testing.assert_allclose(jax.jacrev(complete)(p), _central_differences(complete, p, 1e-6), atol=1e-8)
 
 
+def test_auto_checkpoints_resolve_and_agree():
+    """``checkpoints="auto"`` (the default) splits long scans into √length segments and changes
+    neither the forward values nor, beyond round-off, the gradient."""
+    from lobattodae._loop import AUTO_CHECKPOINTS_FROM, resolve_checkpoints
+
+    assert resolve_checkpoints("auto", AUTO_CHECKPOINTS_FROM - 1) is None
+    assert resolve_checkpoints("auto", 2000) == 45
+    assert resolve_checkpoints(None, 2000) is None and resolve_checkpoints(7, 2000) == 7
+    ex = get_example("knife-edge")
+    method = L.LobattoIIIAIIIB(stages=3)
+    n = AUTO_CHECKPOINTS_FROM + 21  # 11 segments of 11 (0 idle attempts); 121 steps
+
+    def final(p0, checkpoints):
+        return L.integrate(ex.problem, method, 0.0, 0.02, n, ex.q0, p0, ex.lam0, ex.args, checkpoints=checkpoints)
+
+    p0 = jnp.asarray(ex.p0)
+    for a, b in zip(final(p0, "auto"), final(p0, None)):
+        assert jnp.array_equal(a, b)
+    loss = lambda p, ck: jnp.sum(final(p, ck).q[-1] ** 2)  # noqa: E731
+    g_auto, g_all = jax.grad(loss)(p0, "auto"), jax.grad(loss)(p0, None)
+    np.testing.assert_allclose(g_auto, g_all, rtol=1e-12, atol=1e-14)
+    assert float(jnp.max(jnp.abs(g_all))) > 1e-3  # a gradient that is not trivially zero
+
+
 def test_options_are_checked():
     ex = get_example("knife-edge")
     method = L.LobattoIIIAIIIB(stages=2)
     with pytest.raises(L.LobattoDAEInputError, match="checkpoints"):
         L.integrate(ex.problem, method, 0.0, 0.1, 4, ex.q0, ex.p0, ex.lam0, ex.args, checkpoints=0)
+    with pytest.raises(L.LobattoDAEInputError, match="'auto'"):
+        L.integrate(ex.problem, method, 0.0, 0.1, 4, ex.q0, ex.p0, ex.lam0, ex.args, checkpoints="sqrt")
     with pytest.raises(L.LobattoDAEInputError, match="differentiable"):
         L.integrate_adaptive(ex.problem, method, (0.0, 1.0), ex.q0, ex.p0, ex.lam0, ex.args, differentiable="yes")

@@ -152,7 +152,8 @@ def _one(plan: _Plan, numbers, shared, q0, p0, lam0, batched):
     args = jax.tree_util.tree_unflatten(plan.treedef, _merge(plan.flags, batched, shared))
     if plan.n_steps is not None:
         t0, h = numbers
-        r = integrate(plan.problem, plan.method, t0, h, plan.n_steps, q0, p0, lam0, args)
+        # not differentiated: the plain scan (checkpointed segments only serve reverse mode)
+        r = integrate(plan.problem, plan.method, t0, h, plan.n_steps, q0, p0, lam0, args, checkpoints=None)
         if plan.save == "final":
             return r._replace(q=r.q[-1], p=r.p[-1], lam=r.lam[-1])
         return r

@@ -20,6 +20,7 @@ entry points on top of it (jit/vmap-able); :func:`~lobattodae.solve` runs it in 
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -495,13 +496,35 @@ def _integrate(problem, method, n_steps, checkpoints, t0, h, q0, p0, lam0, args)
 _integrate_compiled = jax.jit(_integrate, static_argnums=(0, 1, 2, 3))
 
 
+#: ``checkpoints="auto"`` (the default of the differentiable entry points): a scan of at least
+#: AUTO_CHECKPOINTS_FROM attempts is split into ``round(√length)`` checkpointed segments. Reverse
+#: mode then keeps O(√length) states instead of O(length) and is also faster (measured: 1.3x on
+#: the falling disk, 1.4x on the sleigh, benchmarks/gradients.py), while the forward pass runs
+#: the same attempts bit for bit (within noise of the plain scan's time).
+AUTO_CHECKPOINTS_FROM = 100
+
+
+def resolve_checkpoints(checkpoints, length: int) -> int | None:
+    """The number of checkpointed segments of a scan of ``length`` attempts: ``checkpoints`` as
+    given (a positive integer, or None for none), or for ``"auto"`` the rule above."""
+    if checkpoints == "auto":
+        return int(round(math.sqrt(length))) if length >= AUTO_CHECKPOINTS_FROM else None
+    if checkpoints is not None and (isinstance(checkpoints, bool) or not isinstance(checkpoints, (int, np.integer))
+                                    or checkpoints < 1):
+        raise LobattoDAEInputError(
+            f"checkpoints must be 'auto' (the default: √length segments for long runs), None (keep every "
+            f"step for reverse mode) or a positive integer number of segments; got {checkpoints!r}."
+        )
+    return None if checkpoints is None else int(checkpoints)
+
+
 def _check_count(name: str, value) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise LobattoDAEInputError(f"{name} must be a positive integer (it sets the output shape); got {value!r}.")
 
 
 def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam0, args=None, *,
-              checkpoints: int | None = None) -> IntegrateResult:
+              checkpoints: int | str | None = "auto") -> IntegrateResult:
     """Pure, jit/vmap/grad-able integration of ``n_steps`` steps of size ``h`` (no input checks).
 
     The building block for batched use: ``jax.vmap(integrate, ...)`` over initial values or
@@ -514,9 +537,12 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
     with respect to ``t0``, ``h``, ``q0``, ``p0``, ``lam0`` and the float leaves of ``args``:
     the derivatives are those of the discrete map (the exact stage solutions, by the implicit
     function theorem; Newton's iterations are never differentiated). Reverse mode keeps each
-    step's state and stages, O(n_steps × state) memory; ``checkpoints=k`` keeps k segment
-    starts instead and recomputes each segment in the backward pass (O(k + n_steps/k) memory,
-    about one more forward solve; k ≈ √n_steps for long runs).
+    step's state and stages with ``checkpoints=None``, O(n_steps × state) memory;
+    ``checkpoints=k`` keeps k segment starts instead and recomputes each segment in the
+    backward pass (O(k + n_steps/k) memory, Newton's iterations run again). The default
+    ``"auto"`` takes k = round(√n_steps) from 100 steps on (:data:`AUTO_CHECKPOINTS_FROM`):
+    O(√n_steps) memory, and on the measured problems a faster gradient than keeping every
+    step. The forward values do not depend on ``checkpoints``.
 
     Returns
     -------
@@ -526,8 +552,7 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
         code). The rows after a failed step are NaN.
     """
     _check_count("n_steps", n_steps)
-    if checkpoints is not None:
-        _check_count("checkpoints", checkpoints)
+    checkpoints = resolve_checkpoints(checkpoints, n_steps)
     cast = functools.partial(jnp.asarray, dtype=jnp.float64)
     return _integrate_compiled(problem, method, n_steps, checkpoints, cast(t0), cast(h), cast(q0), cast(p0), cast(lam0),
                                args)
@@ -605,7 +630,7 @@ _integrate_adaptive_compiled = jax.jit(_integrate_adaptive, static_argnums=(0, 1
 def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, args=None, *, rtol=1e-8, atol=1e-10,
                        first_step=0.0, max_step=jnp.inf, max_steps: int = 4096, t_eval=None,
                        controller=PIController(), differentiable: bool = False,
-                       checkpoints: int | None = None) -> AdaptiveResult:
+                       checkpoints: int | str | None = "auto") -> AdaptiveResult:
     """Pure, jit/vmap-able integration with error-controlled (or reversible) step sizes.
 
     The same loop and controllers as :func:`~lobattodae.solve` without the input checks, for
@@ -629,8 +654,7 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
         with ``t_eval`` (an array, sorted in the direction of integration) one row per time.
     """
     _check_count("max_steps", max_steps)
-    if checkpoints is not None:
-        _check_count("checkpoints", checkpoints)
+    checkpoints = resolve_checkpoints(checkpoints, max_steps)
     if not isinstance(differentiable, bool):
         raise LobattoDAEInputError(f"differentiable must be True or False; got {differentiable!r}.")
     if isinstance(controller, PIController):
@@ -640,6 +664,6 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
     options = ControlOptions(1, rtol, atol, first_step, max_step)
     t_eval = None if t_eval is None else cast(t_eval)
     return _integrate_adaptive_compiled(
-        problem, method, controller, max_steps, differentiable, checkpoints, t0, t1, cast(q0), cast(p0), cast(lam0), args,
-        options, t_eval,
+        problem, method, controller, max_steps, differentiable, checkpoints if differentiable else None, t0, t1,
+        cast(q0), cast(p0), cast(lam0), args, options, t_eval,
     )
