@@ -415,12 +415,12 @@ def test_state_schema_is_versioned():
     and recording the new fingerprint fails here."""
     from lobattodae import _checkpoint
     from lobattodae._controllers import ConstantStepSize, ControlOptions
-    from lobattodae._loop import Output, init_compiled
+    from lobattodae._loop import Output, init_host
 
     ex = get_example("falling-disk-general")
     f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-    state = init_compiled(ex.problem, L.LobattoIIIAIIIB(stages=4), ConstantStepSize(), Output(), f64(0.0), f64(1.0),
-                          ControlOptions(n=10), f64(ex.q0), f64(ex.p0), f64(ex.lam0), ex.args)
+    state, _ = init_host(ex.problem, L.LobattoIIIAIIIB(stages=4), ConstantStepSize(), Output(), f64(0.0), f64(1.0),
+                         ControlOptions(n=10), f64(ex.q0), f64(ex.p0), f64(ex.lam0), ex.args)
     assert _checkpoint.schema_fingerprint(state) == _checkpoint.STATE_FINGERPRINT, (
         "the loop State changed: bump _checkpoint.VERSION and record the new STATE_FINGERPRINT"
     )

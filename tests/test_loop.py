@@ -8,7 +8,7 @@ import pytest
 
 import lobattodae as L
 from lobattodae._controllers import ConstantStepSize, ControlOptions, StepReport
-from lobattodae._loop import Output, init_compiled, run_compiled
+from lobattodae._loop import Output, init_host, run_host
 from lobattodae.examples import get_example
 
 
@@ -82,15 +82,15 @@ def test_chunks_give_the_same_numbers_as_one_run(knife):
     c = ConstantStepSize()
     f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
     out = Output()
-    state = init_compiled(knife.problem, m, c, out, f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0),
-                          f64(knife.p0), f64(knife.lam0), knife.args)
-    whole, chunk = run_compiled(knife.problem, m, c, out, state, knife.args, 64)
+    state, packing = init_host(knife.problem, m, c, out, f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0),
+                               f64(knife.p0), f64(knife.lam0), knife.args)
+    whole, chunk = run_host(knife.problem, m, c, out, packing, state, knife.args, 64)
     rec = chunk.rows
     assert int(chunk.n_rows) == 60 and np.all(np.isnan(np.asarray(rec.q[60:])))
     part = state
     rows = []
     for _ in range(4):
-        part, r = run_compiled(knife.problem, m, c, out, part, knife.args, 16)
+        part, r = run_host(knife.problem, m, c, out, packing, part, knife.args, 16)
         rows.append(np.asarray(r.rows.q)[: int(r.n_rows)])
     np.testing.assert_array_equal(np.concatenate(rows), np.asarray(rec.q)[:60])
     np.testing.assert_array_equal(np.asarray(part.q), np.asarray(whole.q))

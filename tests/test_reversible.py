@@ -20,7 +20,7 @@ import pytest
 
 import lobattodae as L
 from lobattodae._controllers import ControlOptions, ReversibleStepSize, StepReport, phase_space_speed
-from lobattodae._loop import CHUNK, Output, init_compiled, run_compiled
+from lobattodae._loop import CHUNK, Output, init_host, run_host
 from lobattodae.examples import get_example
 
 F64 = jnp.float64
@@ -61,14 +61,15 @@ def _there_and_back(ex, method, controller, n=CHUNK):
     n = CHUNK the compiled loop is the one ``solve`` uses (called as ``solve`` calls it)."""
     options = ControlOptions(1, 1e-8, 1e-10, FIRST_STEP, float(jnp.inf))
     q0, p0, lam0 = (jnp.asarray(x) for x in (ex.q0, ex.p0, ex.lam0))
-    state = init_compiled(ex.problem, method, controller, Output(), F64(0.0), F64(1e6), options, q0, p0, lam0, ex.args)
-    state, fwd = run_compiled(ex.problem, method, controller, Output(), state, ex.args, n, 1, None)
+    state, packing = init_host(ex.problem, method, controller, Output(), F64(0.0), F64(1e6), options, q0, p0, lam0,
+                               ex.args)
+    state, fwd = run_host(ex.problem, method, controller, Output(), packing, state, ex.args, n, 1, None)
     t_n = state.controller.t
-    back = init_compiled(ex.problem, method, controller, Output(), t_n, F64(0.0), options, state.q, state.p, state.lam,
-                         ex.args)
+    back, packing = init_host(ex.problem, method, controller, Output(), t_n, F64(0.0), options, state.q, state.p,
+                              state.lam, ex.args)
     turned = _turn_around_fn(ex.problem, controller)(state.controller, state.q, state.p, state.lam, ex.args)
-    back, bwd = run_compiled(ex.problem, method, controller, Output(), back._replace(controller=turned), ex.args, n, 1,
-                             None)
+    back, bwd = run_host(ex.problem, method, controller, Output(), packing, back._replace(controller=turned), ex.args,
+                         n, 1, None)
     k = int(bwd.n_rows)
     rows = lambda chunk, count: {f: np.asarray(getattr(chunk.rows, f))[:count] for f in ("t", "q", "p", "lam")}
     return rows(fwd, int(fwd.n_rows)), rows(bwd, k), back

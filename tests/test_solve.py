@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae._loop import run_compiled
+from lobattodae._loop import _run_packed
 from lobattodae.examples import get_example
 
 
@@ -116,15 +116,15 @@ def test_new_numbers_do_not_recompile(knife):
     initial values or args values reuse it."""
     m = L.LobattoIIIAIIIB(stages=2)
     _solve(knife, s=2, n=100)
-    size = run_compiled._cache_size()
+    size = _run_packed._cache_size()
     sol = L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0 * 1.0, n_steps=100, args=knife.args)
     assert sol.success
-    assert run_compiled._cache_size() == size
+    assert _run_packed._cache_size() == size
     for n in (90, 3000, 7):
         L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=n, args=knife.args)
     L.solve(knife.problem, m, (1.0, 4.5), knife.q0, knife.p0, n_steps=33, args=knife.args)
     L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=33, args=knife.args._replace(g=2.5))
-    assert run_compiled._cache_size() == size
+    assert _run_packed._cache_size() == size
 
 
 def test_integrate_is_compiled_once_per_shape(knife):

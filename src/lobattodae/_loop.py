@@ -32,6 +32,7 @@ from ._controllers import ConstantStepSize, ControlOptions, PIController, StepRe
 from ._dense import DenseStep, empty_dense_step, evaluate
 from ._errors import LobattoDAEInputError
 from ._events import Event, EventState, crossings, event_values, locate
+from ._packing import StatePacking
 from ._results import Result
 from ._stepper import LobattoIIIAIIIB, StepperState, for_error_control
 
@@ -461,15 +462,53 @@ def scan_run(problem, method: LobattoIIIAIIIB, controller, state: State, args, l
     return state, jax.tree_util.tree_map(lambda x: x.reshape((-1,) + x.shape[2:])[:length], steps)
 
 
-@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output", "length"))
-def run_compiled(problem, method, controller, output, state, args, length, every=1, t_eval=None):
-    """:func:`run`, compiled once per (problem, method, controller, output, shapes, length)."""
-    return run(problem, method, controller, output, state, args, length, every, t_eval)
+# -- the loop as solve() drives it: compiled chunks, the state on the host ---------------------------
+@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output", "packing"))
+def _init_packed(problem, method, controller, output, packing, t0, t1, options, q0, p0, lam0, args):
+    return packing.pack(init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args))
 
 
-@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output"))
-def init_compiled(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args):
-    return init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
+@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output", "packing", "length"))
+def _run_packed(problem, method, controller, output, packing, floats, ints, args, length, every, t_eval):
+    state, chunk = run(problem, method, controller, output, packing.unpack(floats, ints), args, length, every, t_eval)
+    return packing.pack(state), chunk
+
+
+_PACKINGS: dict = {}
+
+
+def _state_packing(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args) -> StatePacking:
+    """The layout of the loop state, traced once per problem, method, controller, output and
+    shapes (of the values and of ``args``)."""
+    leaves, treedef = jax.tree_util.tree_flatten(args)
+    key = (problem, method, controller, output, q0.shape, lam0.shape, treedef,
+           tuple((np.shape(x), np.result_type(x)) for x in leaves))
+    packing = _PACKINGS.get(key)
+    if packing is None:
+        shapes = jax.eval_shape(functools.partial(init_state, problem, method, controller, output),
+                                t0, t1, options, q0, p0, lam0, args)
+        packing = _PACKINGS[key] = StatePacking.of(shapes)
+    return packing
+
+
+def init_host(problem, method, controller, output: Output, t0, t1, options: ControlOptions, q0, p0, lam0,
+              args) -> tuple[State, StatePacking]:
+    """:func:`init_state`, compiled, with the state returned to the host (NumPy arrays) and the
+    layout to hand to :func:`run_host` with it."""
+    t0, t1, q0, p0, lam0 = (np.asarray(x, np.float64) for x in (t0, t1, q0, p0, lam0))  # host arrays: cheap
+    packing = _state_packing(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
+    packed = _init_packed(problem, method, controller, output, packing, t0, t1, options, q0, p0, lam0, args)
+    return packing.unpack(*jax.device_get(packed)), packing
+
+
+def run_host(problem, method, controller, output: Output, packing: StatePacking, state: State, args, length: int,
+             every=1, t_eval=None) -> tuple[State, Chunk]:
+    """:func:`run`, compiled once per (problem, method, controller, output, shapes, length), from
+    and to a state on the host: it travels packed (:mod:`lobattodae._packing`), two arrays
+    instead of fifty, which is most of the cost of a short chunk's dispatch."""
+    packed, chunk = _run_packed(problem, method, controller, output, packing, *packing.pack(state, np), args, length,
+                                every, t_eval)
+    return packing.unpack(*jax.device_get(packed)), chunk
 
 
 class IntegrateResult(NamedTuple):

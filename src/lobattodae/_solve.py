@@ -27,7 +27,7 @@ from ._errors import LobattoDAEInputError, NewtonFailure
 from ._controllers import ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
 from ._dense import DenseOutput
 from ._events import as_events
-from ._loop import CHUNK, Output, Record, State, init_compiled, run_compiled
+from ._loop import CHUNK, Output, Record, State, init_host, run_host
 from ._results import Result
 from ._stepper import LobattoIIIAIIIB, for_error_control
 from ._validate import check_float64, check_tolerance_attainable, validate_and_residual
@@ -579,12 +579,8 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
         method = for_error_control(method)
     _check_events(opt.output.events, opt.t0, q0, p0, args)
     report = _progress_reporter(progress, opt)
-    f64 = jnp.float64
     controller, output = opt.controller, opt.output
-    state = init_compiled(
-        problem, method, controller, output, jnp.asarray(opt.t0, f64), jnp.asarray(opt.t1, f64), opt.control,
-        jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam0), args,
-    )
+    state, packing = init_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0, p0, lam0, args)
     run = _Progress.start(state, opt)
     meta = _run_identity(problem, method, args, opt, q0, p0, lam0) if opt.checkpoint else None
     if opt.checkpoint and opt.resume and _checkpoint.exists(opt.checkpoint):
@@ -595,7 +591,8 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
     last_saved = int(run.state.n_accepted)
     try:
         while not _finished(opt, run.state) and not interrupted():
-            state, chunk = run_compiled(problem, method, controller, output, run.state, args, opt.chunk, opt.every, t_eval)
+            state, chunk = run_host(problem, method, controller, output, packing, run.state, args, opt.chunk, opt.every,
+                                    t_eval)
             rows, dense, events = _numpy_chunk(run, chunk)
             if int(state.result) not in (Result.SUCCESSFUL, Result.EVENT):
                 recovered = None
@@ -680,11 +677,11 @@ def _recover_step(problem, method, args, state: State):
     ctrl = state.controller
     t_start, h = controller.proposal(ctrl)
     for j in range(1, _RECOVERY_HALVINGS + 1):
-        sub = init_compiled(
+        sub, packing = init_host(
             problem, method, controller, Output(), t_start, t_start + h, ControlOptions(n=1 << j),
             state.q, state.p, state.lam, args,
         )
-        sub, chunk = run_compiled(problem, method, controller, Output(), sub, args, 1 << _RECOVERY_HALVINGS)
+        sub, chunk = run_host(problem, method, controller, Output(), packing, sub, args, 1 << _RECOVERY_HALVINGS)
         count = int(chunk.n_rows)
         if int(sub.result) != Result.SUCCESSFUL or count != 1 << j:
             continue
