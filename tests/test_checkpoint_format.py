@@ -22,6 +22,8 @@ import pytest
 from lobattodae import _checkpoint as C
 from lobattodae._errors import LobattoDAEInputError
 
+from helpers import assert_bitwise_equal
+
 
 class Jac(NamedTuple):
     inverse: Any
@@ -106,15 +108,6 @@ def expect_corrupt(path, **kw) -> str:
     assert "PosixPath" not in msg and "\n" not in msg
     return msg
 
-
-def assert_bitwise_equal(a, b):
-    la, ta = jax.tree_util.tree_flatten(a)
-    lb, tb = jax.tree_util.tree_flatten(b)
-    assert ta == tb
-    for x, y in zip(la, lb):
-        x, y = np.asarray(x), np.asarray(y)
-        assert x.dtype == y.dtype and x.shape == y.shape
-        assert x.tobytes() == y.tobytes()
 
 
 def leftovers(directory, keep):

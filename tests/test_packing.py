@@ -11,15 +11,7 @@ from lobattodae._loop import Output, init_host
 from lobattodae._packing import StatePacking
 from lobattodae.examples import get_example
 
-
-def _leaves_equal(a, b):
-    la, ta = jax.tree_util.tree_flatten(a)
-    lb, tb = jax.tree_util.tree_flatten(b)
-    assert ta == tb
-    for x, y in zip(la, lb):
-        x, y = np.asarray(x), np.asarray(y)
-        assert x.shape == y.shape and x.dtype == y.dtype, (x.shape, y.shape, x.dtype, y.dtype)
-        np.testing.assert_array_equal(x, y)
+from helpers import assert_bitwise_equal
 
 
 def test_a_mixed_tree_round_trips_on_the_host_and_in_a_trace():
@@ -28,8 +20,8 @@ def test_a_mixed_tree_round_trips_on_the_host_and_in_a_trace():
     packing = StatePacking.of(tree)
     floats, ints = packing.pack(tree, np)
     assert floats.dtype == np.float64 and floats.shape == (7,) and ints.dtype == np.int32 and ints.shape == (6,)
-    _leaves_equal(packing.unpack(floats, ints), tree)
-    _leaves_equal(jax.jit(lambda t: packing.unpack(*packing.pack(t)))(tree), tree)
+    assert_bitwise_equal(packing.unpack(floats, ints), tree)
+    assert_bitwise_equal(jax.jit(lambda t: packing.unpack(*packing.pack(t)))(tree), tree)
 
 
 def test_the_loop_state_round_trips():
@@ -41,7 +33,7 @@ def test_the_loop_state_round_trips():
     assert StatePacking.of(state) == packing
     kinds = set(packing.kinds)
     assert kinds == {"f", "i", "b"}
-    _leaves_equal(packing.unpack(*packing.pack(state, np)), state)
+    assert_bitwise_equal(packing.unpack(*packing.pack(state, np)), state)
 
 
 def test_unsupported_dtypes_are_refused():
