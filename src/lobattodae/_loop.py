@@ -475,6 +475,8 @@ def _run_packed(problem, method, controller, output, packing, floats, ints, args
 
 
 _PACKINGS: dict = {}
+#: Layouts kept at most (one per problem object, method, controller, output and shapes).
+_PACKINGS_MAX = 256
 
 
 def _state_packing(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args) -> StatePacking:
@@ -487,6 +489,8 @@ def _state_packing(problem, method, controller, output, t0, t1, options, q0, p0,
     if packing is None:
         shapes = jax.eval_shape(functools.partial(init_state, problem, method, controller, output),
                                 t0, t1, options, q0, p0, lam0, args)
+        if len(_PACKINGS) >= _PACKINGS_MAX:
+            _PACKINGS.clear()
         packing = _PACKINGS[key] = StatePacking.of(shapes)
     return packing
 
