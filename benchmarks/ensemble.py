@@ -27,6 +27,10 @@ import lobattodae as L
 from lobattodae.examples import get_example
 
 
+#: (example, h) of the tables; s = 3 throughout.
+CASES = (("knife-edge", 0.01), ("falling-disk-general", 0.01))
+
+
 def _consistent_batch(ex, batch: int, seed: int = 0):
     """B consistent initial values: random momenta projected onto the constraint, λ0 solved."""
     rng = np.random.default_rng(seed)
@@ -60,12 +64,7 @@ def run(example: str, stages: int, batch: int, n_steps: int, h: float) -> dict:
     t = time.perf_counter()
     qT, status = jax.block_until_ready(ensemble(q0, p0, lam0))
     first = time.perf_counter() - t
-    times = []
-    for _ in range(3):
-        t = time.perf_counter()
-        jax.block_until_ready(ensemble(q0, p0, lam0))
-        times.append(time.perf_counter() - t)
-    best = min(times)
+    best = min(_timed(ensemble, q0, p0, lam0) for _ in range(3))
     ok = int(np.sum(np.asarray(status) == 0))
     return {
         "example": example, "stages": stages, "batch": batch, "n_steps": n_steps, "h": h,
@@ -120,7 +119,7 @@ def main() -> None:
     rows = []
     print(f"backend: {backend}  devices: {jax.devices()}")
     print(f"{'example':22s} {'s':>2} {'batch':>6} {'steps':>6} {'compile+1st':>11} {'run':>9} {'traj-steps/s':>13} {'us/traj-step':>12} ok")
-    for example, h in (("knife-edge", 0.01), ("falling-disk-general", 0.01)):
+    for example, h in CASES:
         for b in batches:
             r = run(example, 3, b, n_steps, h)
             rows.append(r)
@@ -129,7 +128,7 @@ def main() -> None:
     grads = []
     if ns.grad:
         print(f"\n{'example':22s} {'s':>2} {'batch':>6} {'steps':>6} {'forward':>9} {'grad':>9} {'grad/fwd':>8} {'gradients/s':>12}")
-        for example, h in (("knife-edge", 0.01), ("falling-disk-general", 0.01)):
+        for example, h in CASES:
             for b in batches:
                 r = run_grad(example, 3, b, n_steps, h)
                 grads.append(r)
