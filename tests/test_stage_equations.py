@@ -135,3 +135,31 @@ def test_residual_vanishes_at_a_solved_step(s):
     assert int(info.result) == 0
     # the constraint holds at the step point (H3: a_sj = b_j), to round-off
     assert float(jnp.max(jnp.abs(ex.problem.phi(0.05, q1, p1, ex.args)))) < 1e-14
+
+
+def test_a_constraint_damped_mode_is_integrated_explicitly():
+    """The sleigh on straight motion: its turning rate decays like exp(-k t) through the
+    constraint, and one step multiplies it by R(h). For s = 2 the scheme gives exactly the
+    Taylor polynomial 1 + z + z²/2 (z = -k h), as an explicit second-order method would; for
+    s = 4 R is accurate for small h but exceeds 1 beyond k h ≈ 9.65 (the step-size limit
+    documented in docs/variable-steps.md §2, benchmarks/stability_limit.py)."""
+    ex = get_example("sleigh")
+    a = ex.args
+    v, w = np.sqrt(2.0), 1e-6
+    k = a.m * a.a * v / (a.I + a.m * a.a**2)
+    q0, p0 = np.zeros(3), np.array([a.m * v, a.m * a.a * w, a.I * w])
+    lam0 = L.consistent_lambda(ex.problem, 0.0, q0, p0, np.zeros(1), a)
+
+    steps = {s: jax.jit(lambda h, m=L.LobattoIIIAIIIB(stages=s): m.step(ex.problem, 0.0, q0, p0, lam0, h, a))
+             for s in (2, 4)}
+
+    def factor(s, h):
+        _, p1, _, info, _ = steps[s](h)
+        assert int(info.result) == 0
+        return float(p1[2] / p0[2])
+
+    for h in (0.5, 2.0, 4.0, 8.0):
+        z = -k * h
+        assert factor(2, h) == pytest.approx(1 + z + z**2 / 2, rel=1e-6, abs=1e-9)
+    assert factor(4, 1.0) == pytest.approx(np.exp(-k), rel=1e-4)
+    assert abs(factor(4, 12.0)) < 1 < abs(factor(4, 16.0))
