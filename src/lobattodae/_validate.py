@@ -678,9 +678,8 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
         raise ShapeError("q0 and p0 are empty; pass arrays of shape (n,) with n ≥ 1, one entry per coordinate.")
     # NumPy on the host (the compiled checks take it as it is; a jnp.asarray costs ~30 µs each)
     t0j = np.asarray(t0, np.float64)
-    qj, pj = q0, p0
     m = _output_signature(problem, n, args)  # first: shapes (also of M and μ), by tracing
-    _check_mass_matrix(problem, t0j, qj, args)  # then M's values: f, g and φ all solve with M
+    _check_mass_matrix(problem, t0j, q0, args)  # then M's values: f, g and φ all solve with M
     if lam0 is not None and lam0.shape != (m,):
         raise ShapeError(
             f"lam0 must have shape (m,) = ({m},) to match phi; got {lam0.shape}. The problem has m = {m} "
@@ -689,8 +688,8 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
     lam = np.zeros(m) if lam0 is None else lam0
 
     scale = 1.0 + float(np.max(np.abs(p0))) + float(np.max(np.abs(q0)))
-    _check_position_constraint(problem, t0j, qj, args, tol, scale)
-    phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, qj, pj, lam, args))
+    _check_position_constraint(problem, t0j, q0, args, tol, scale)
+    phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, q0, p0, lam, args))
     _check_finite_at_start(phi0, r, jac, lam0 is not None)
     phi_norm = float(np.max(np.abs(phi0)))
     if not project and not phi_norm <= tol * scale:
@@ -703,8 +702,7 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
         # Always project when asked, also when p0 is already within the tolerance: the user
         # then gets φ(t0, q0, p0) = 0 to round-off, not merely ≤ tol.
         p0 = _project_momenta(problem, t0j, q0, p0, args, tol * scale)
-        pj = np.asarray(p0, np.float64)
-        phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, qj, pj, lam, args))
+        phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, q0, p0, lam, args))
         _check_finite_at_start(phi0, r, jac, lam0 is not None)
     _check_nonsingular(jac)
 
@@ -718,7 +716,7 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
                 )
             if float(np.max(np.abs(dlam))) <= 1e-15 * (1.0 + float(np.max(np.abs(lam)))):
                 break
-            _, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, qj, pj, lam, args))
+            _, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, q0, p0, lam, args))
         lam0 = np.asarray(lam)
     else:
         rn = float(np.max(np.abs(r)))
