@@ -542,7 +542,7 @@ _integrate_compiled = jax.jit(_integrate, static_argnums=(0, 1, 2, 3))
 #: ``checkpoints="auto"`` (the default of the differentiable entry points): a scan of at least
 #: AUTO_CHECKPOINTS_FROM attempts is split into ``round(√length)`` checkpointed segments. Reverse
 #: mode then keeps O(√length) states instead of O(length) and is also faster (measured: 1.3x on
-#: the falling disk, 1.4x on the sleigh, benchmarks/gradients.py), while the forward pass runs
+#: the falling disk, 1.3-1.4x on the sleigh, benchmarks/gradients.py), while the forward pass runs
 #: the same attempts bit for bit (within noise of the plain scan's time).
 AUTO_CHECKPOINTS_FROM = 100
 
