@@ -14,6 +14,7 @@ _jax.config.update("jax_enable_x64", True)
 
 from ._cache import enable_compilation_cache  # noqa: E402
 from ._conditions import TableauReport, check_tableau  # noqa: E402
+from ._cpu import set_cpu_threads  # noqa: E402
 from ._convergence import ConvergenceStudy, convergence_study, observed_order  # noqa: E402
 from ._diagnostics import constraint_residual, energy_error, invariant_error, invariant_values  # noqa: E402
 from ._errors import (  # noqa: E402
@@ -107,6 +108,7 @@ __all__ = [
     "lobatto_pair",
     "lobatto_weights",
     "project_momenta",
+    "set_cpu_threads",
     "solve",
     "validate_initial_values",
 ]

@@ -16,6 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from ._cache import cache_switched_off, enable_compilation_cache
+from ._cpu import one_thread_unless_set
 
 __all__ = ["main"]
 
@@ -197,8 +198,10 @@ def _main(argv: Sequence[str] | None) -> int:
     except SystemExit as exc:  # --help
         return int(exc.code or 0)
     try:
-        if ns.command in _COMPILING_COMMANDS and not cache_switched_off():
-            enable_compilation_cache()
+        if ns.command in _COMPILING_COMMANDS:
+            if not cache_switched_off():
+                enable_compilation_cache()
+            one_thread_unless_set()  # fastest for these small systems (lobattodae._cpu)
         return _COMMANDS[ns.command](ns)
     except _UsageError as exc:
         print(f"lobattodae: error: {exc}", file=sys.stderr)
@@ -426,7 +429,8 @@ def _save_solution(sol, path: Path) -> None:
 
 
 #: Commands that compile step loops use the persistent compilation cache (see
-#: :func:`lobattodae.enable_compilation_cache`) unless LOBATTODAE_NO_CACHE=1.
+#: :func:`lobattodae.enable_compilation_cache`) unless LOBATTODAE_NO_CACHE=1, and a one-thread
+#: CPU pool (:func:`lobattodae.set_cpu_threads`) unless PJRT_NPROC or NPROC is set.
 _COMPILING_COMMANDS = frozenset({"demo", "convergence", "run"})
 
 _COMMANDS = {

@@ -1,0 +1,128 @@
+"""Step cost with XLA's default CPU thread pool against a one-thread pool (issue #10).
+
+XLA:CPU hands kernels that could run concurrently to its thread pool; lobattodae's steps are
+chains of tiny kernels, for which the hand-offs cost more than they gain
+(:mod:`lobattodae._cpu`). The pool size is fixed when JAX starts its CPU backend, so each
+setting runs in its own fresh process (``PJRT_NPROC`` unset, or ``PJRT_NPROC=1`` as
+:func:`lobattodae.set_cpu_threads` sets it); the two alternate, ``--rounds`` times, and each
+case reports the best of its rounds.
+
+Cases (time per step of ``jax.jit(integrate)`` over ``N`` constant steps, compiled first;
+best of 3 calls per process): the knife edge (s = 5, h = 0.2), the Chaplygin sleigh (s = 5,
+h = 1), the falling disk in general motion (s = 3 and s = 5 at h = 0.05, s = 5 at h = 0.25),
+a ``vmap`` batch of 64 falling disks (s = 3, h = 0.05, per trajectory-step), and diffrax's
+Dopri8 on the falling disk's index-reduced ODE (per step; tolerance 1e-12, PID (0, 1)), which
+shows that the setting is ours, not the other solvers'.
+
+Usage::
+
+    PYTHONPATH=src .venv/bin/python benchmarks/cpu_threads.py [--rounds 3]
+
+Writes ``benchmarks/results/cpu_threads.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results", "cpu_threads.json")
+
+CASES = [
+    # (label, example, stages, h, steps, batch)
+    ("knife edge, s = 5, h = 0.2", "knife-edge", 5, 0.2, 5000, None),
+    ("sleigh, s = 5, h = 1", "sleigh", 5, 1.0, 1000, None),
+    ("falling disk, s = 3, h = 0.05", "falling-disk-general", 3, 0.05, 2000, None),
+    ("falling disk, s = 5, h = 0.05", "falling-disk-general", 5, 0.05, 2000, None),
+    ("falling disk, s = 5, h = 0.25", "falling-disk-general", 5, 0.25, 2000, None),
+    ("falling disk x 64 (vmap), s = 3, h = 0.05", "falling-disk-general", 3, 0.05, 300, 64),
+]
+
+CHILD = r"""
+import json, sys, time
+import numpy as np
+import jax, jax.numpy as jnp
+import lobattodae as L
+from lobattodae.examples import get_example
+
+def best(f, *a, k=3):
+    jax.block_until_ready(f(*a))
+    ts = []
+    for _ in range(k):
+        t = time.perf_counter(); jax.block_until_ready(f(*a)); ts.append(time.perf_counter() - t)
+    return min(ts)
+
+out = {}
+for label, name, s, h, n, batch in json.loads(sys.argv[1]):
+    ex = get_example(name)
+    m = L.LobattoIIIAIIIB(stages=s)
+    run = lambda q, p, l: L.integrate(ex.problem, m, 0.0, h, n, q, p, l, ex.args, checkpoints=None)
+    if batch is None:
+        t = best(jax.jit(run), ex.q0, ex.p0, ex.lam0)
+        out[label] = t / n
+    else:
+        scale = 1.0 + 1e-3 * np.arange(batch)[:, None]
+        q0, p0 = np.tile(ex.q0, (batch, 1)), np.tile(ex.p0, (batch, 1)) * scale
+        lam0 = np.stack([np.asarray(L.consistent_lambda(ex.problem, 0.0, q, p, ex.lam0, ex.args)) for q, p in zip(q0, p0)])
+        t = best(jax.jit(jax.vmap(run)), q0, p0, lam0)
+        out[label] = t / (n * batch)
+sys.path.insert(0, sys.argv[2])
+import _common as C
+ex = get_example("falling-disk-general")
+ode = C.reduced_ode("falling-disk-general", ex.args)
+dfx = C.DiffraxDopri8(ode)
+y0 = np.r_[ex.q0, ex.p0]
+dfx.final(100.0, y0, 1e-12, (0.0, 1.0))
+ts = []
+for _ in range(3):
+    t = time.perf_counter(); _, nacc, nsteps, ok = dfx.final(100.0, y0, 1e-12, (0.0, 1.0)); ts.append(time.perf_counter() - t)
+out["diffrax Dopri8, falling disk (per step)"] = min(ts) / nsteps
+print("RESULT " + json.dumps(out))
+"""
+
+
+def run_child(one_thread: bool) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in ("PJRT_NPROC", "NPROC")}
+    if one_thread:
+        env["PJRT_NPROC"] = "1"
+    proc = subprocess.run([sys.executable, "-c", CHILD, json.dumps(CASES), HERE], env=env,
+                          capture_output=True, text=True, check=True)
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")][-1]
+    return json.loads(line[len("RESULT "):])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rounds", type=int, default=3)
+    a = ap.parse_args(argv)
+    sys.path.insert(0, HERE)
+    import _common as C
+
+    t0 = time.perf_counter()
+    rounds: dict = {"default": [], "one thread": []}
+    for r in range(a.rounds):
+        for key, one in (("default", False), ("one thread", True)):
+            rounds[key].append(run_child(one))
+            print(f"round {r + 1}/{a.rounds}: {key} done", flush=True)
+    best = {key: {label: min(rd[label] for rd in rs) for label in rs[0]} for key, rs in rounds.items()}
+    rows = []
+    for label in best["default"]:
+        d, o = best["default"][label], best["one thread"][label]
+        rows.append([label, f"{1e6 * d:.1f}", f"{1e6 * o:.1f}", f"{d / o:.2f}"])
+    print(C.md_table(["case (µs per step)", "default pool", "one thread", "default / one thread"], rows))
+    out = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": C.machine_info(),
+           "command": "PYTHONPATH=src .venv/bin/python benchmarks/cpu_threads.py " + " ".join(sys.argv[1:]),
+           "loadavg": C.loadavg(), "seconds": time.perf_counter() - t0, "rounds": rounds, "best_s_per_step": best}
+    C.write_json(out, RESULTS)
+    print(f"wrote {RESULTS} ({out['seconds']:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
