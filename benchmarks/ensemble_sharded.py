@@ -127,6 +127,7 @@ def main() -> None:
             env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={d}").strip()
             env["JAX_PLATFORMS"] = "cpu"
             env["NPROC"] = str(2 * max(ns.devices))
+            env.pop("PJRT_NPROC", None)  # it would take precedence over NPROC
         args = [sys.executable, os.path.abspath(__file__), "--child", str(d), "--example", ns.example,
                 "--stages", str(ns.stages), "--batch", str(ns.batch), "--steps", str(ns.steps), "--h", str(ns.h),
                 "--repeats", str(ns.repeats)]

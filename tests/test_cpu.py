@@ -78,3 +78,14 @@ print(code, pool_threads())
 """
     assert _python(run, LOBATTODAE_NO_CACHE="1")[-2:] == ["0", "1"]
     assert _python(run, LOBATTODAE_NO_CACHE="1", NPROC="3")[-2:] == ["0", "3"]
+
+
+def test_cpu_pool_size_reads_the_variables_in_jaxlib_order(monkeypatch):
+    monkeypatch.setenv("PJRT_NPROC", "3")
+    monkeypatch.setenv("NPROC", "7")
+    assert _cpu.cpu_pool_size() == 3
+    monkeypatch.setenv("PJRT_NPROC", "not a number")
+    assert _cpu.cpu_pool_size() == 7
+    monkeypatch.delenv("PJRT_NPROC")
+    monkeypatch.delenv("NPROC")
+    assert _cpu.cpu_pool_size() == len(os.sched_getaffinity(0))

@@ -256,6 +256,7 @@ def _subprocess_env(devices: int) -> dict:
     env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
     env["JAX_PLATFORMS"] = "cpu"
     env["NPROC"] = str(2 * devices)
+    env.pop("PJRT_NPROC", None)  # it would take precedence over NPROC
     return env
 
 
@@ -397,8 +398,9 @@ def test_cpu_meshes_keep_a_free_pool_thread(monkeypatch):
     """As many CPU devices as XLA's CPU pool has threads can deadlock jaxlib's batched LU (seen:
     2 forced devices, 2 cores, 64 trajectories per device): default devices keep one thread free."""
     cpus = [types.SimpleNamespace(platform="cpu", id=i) for i in range(4)]
+    monkeypatch.delenv("PJRT_NPROC", raising=False)
     monkeypatch.setenv("NPROC", "2")
-    with pytest.warns(RuntimeWarning, match="shards over 1 of the 4 local CPU devices.*NPROC=8"):
+    with pytest.warns(RuntimeWarning, match="shards over 1 of the 4 local CPU devices.*PJRT_NPROC=8"):
         assert _ensemble._guard_cpu_pool(cpus, explicit=False) == cpus[:1]
     with pytest.warns(RuntimeWarning, match=r"can deadlock.*at most 1 device\(s\)"):
         assert _ensemble._guard_cpu_pool(cpus, explicit=True) == cpus
@@ -413,3 +415,8 @@ def test_cpu_meshes_keep_a_free_pool_thread(monkeypatch):
         gpus = [types.SimpleNamespace(platform="gpu", id=i) for i in range(8)]
         monkeypatch.setenv("NPROC", "2")
         assert _ensemble._guard_cpu_pool(gpus, explicit=False) == gpus
+    monkeypatch.setenv("PJRT_NPROC", "1")  # jaxlib reads it before NPROC (set_cpu_threads sets it)
+    with pytest.warns(RuntimeWarning, match="shards over 1 of the 4 local CPU devices"):
+        assert _ensemble._guard_cpu_pool(cpus, explicit=False) == cpus[:1]
+    monkeypatch.setenv("PJRT_NPROC", "6")
+    assert _ensemble._guard_cpu_pool(cpus, explicit=False) == cpus

@@ -16,10 +16,24 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["set_cpu_threads", "one_thread_unless_set", "THREADS_ENV"]
+__all__ = ["set_cpu_threads", "one_thread_unless_set", "cpu_pool_size", "THREADS_ENV"]
 
 #: Read by jaxlib when it creates the CPU client (before ``NPROC``).
 THREADS_ENV = "PJRT_NPROC"
+
+
+def cpu_pool_size() -> int:
+    """The threads of XLA's CPU pool as jaxlib sizes it: ``$PJRT_NPROC``, else ``$NPROC``
+    (the first that is set to an integer; at least 1), else the CPUs this process may run on."""
+    for name in (THREADS_ENV, "NPROC"):
+        try:
+            return max(1, int(os.environ.get(name, "")))
+        except ValueError:
+            continue
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
 
 
 def _backend_started() -> bool:

@@ -50,6 +50,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._controllers import PIController
+from ._cpu import cpu_pool_size
 from ._errors import LobattoDAEInputError, ShapeError
 from ._loop import integrate, integrate_adaptive
 
@@ -454,10 +455,10 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
     size. Plain :func:`~lobattodae.integrate` and its ``vmap`` differ in the same way.
 
     **CPU devices.** Each CPU device's part runs on a thread of XLA's CPU thread pool (one
-    thread per CPU, or ``$NPROC``), and jaxlib's batched LU queues its tasks on the same pool
-    and waits: with as many devices as pool threads the run can hang (JAX 0.10.2, 2 forced
+    thread per CPU, or ``$PJRT_NPROC``, or ``$NPROC``), and jaxlib's batched LU queues its
+    tasks on the same pool and waits: with as many devices as pool threads the run can hang (JAX 0.10.2, 2 forced
     devices on 2 cores, 64 trajectories per device). So by default at most ``pool - 1`` CPU
-    devices are used (with a ``RuntimeWarning``); set ``NPROC`` above the device count before
+    devices are used (with a ``RuntimeWarning``); set ``PJRT_NPROC`` above the device count before
     JAX starts to use them all. Explicit ``devices`` are used as given, with a warning.
 
     **Several processes.** Under ``jax.distributed.initialize`` call ``ensemble`` in every
@@ -577,21 +578,6 @@ def _mode(t0, h, n_steps, t_span, rtol, atol, first_step, max_step, max_steps, t
     return _Mode(None, max_steps, controller, t_eval is not None, numbers, settings, rows)
 
 
-def _cpu_pool_size() -> int:
-    """The threads of XLA's CPU thread pool: ``$NPROC`` if set (XLA reads it when JAX starts its
-    CPU backend), else the CPUs this process may run on."""
-    try:
-        nproc = int(os.environ.get("NPROC", ""))
-    except ValueError:
-        nproc = 0
-    if nproc > 0:
-        return nproc
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
-
-
 def _guard_cpu_pool(devices: list, *, explicit: bool) -> list:
     """Keep CPU meshes out of a deadlock of jaxlib's batched LAPACK kernels.
 
@@ -605,14 +591,14 @@ def _guard_cpu_pool(devices: list, *, explicit: bool) -> list:
     """
     if len(devices) < 2 or any(getattr(d, "platform", None) != "cpu" for d in devices):
         return devices
-    pool = _cpu_pool_size()
+    pool = cpu_pool_size()
     if len(devices) < pool:
         return devices
     why = (f"{len(devices)} CPU devices with {pool} threads in XLA's CPU thread pool can deadlock: jaxlib's "
            "batched LU queues tasks on that pool and waits for them, and when every pool thread runs a device's "
            "part all of them can wait at once")
-    fix = (f"set NPROC={2 * len(devices)} in the environment before JAX starts (the pool's size; XLA reads it "
-           "once)")
+    fix = (f"set PJRT_NPROC={2 * len(devices)} (or NPROC) in the environment before JAX starts (the pool's size; "
+           "XLA reads it once)")
     if explicit:
         warnings.warn(f"{why}. Large blocks may hang; {fix}, or pass at most {max(1, pool - 1)} device(s).",
                       RuntimeWarning, stacklevel=3)
