@@ -27,11 +27,14 @@ __all__ = ["JacobianCache", "NewtonInfo", "NewtonOptions", "empty_jacobian_cache
 
 #: A reused Jacobian is refreshed (see ``needs_refresh``) when, above round-off, it contracts
 #: slower than THETA_REFRESH or its rate predicts more than REFRESH_PREDICTED further
-#: iterations, and in any case after REFRESH_ITERATIONS iterations (a fresh Jacobian costs
-#: about as much as several iterations).
+#: iterations, and in any case after REFRESH_ITERATIONS iterations. A fresh Jacobian and its
+#: inverse cost 10-20 iterations on CPU (falling disk, s = 5: 60 µs against 3 µs); with
+#: (8, 12) instead of (4, 8) its constant steps at h = 0.25 take 0.56 instead of 1.0 Jacobians
+#: per step and run ~23 % faster; steps near round-off (particle, h = 0.0024) take 5.8
+#: instead of 5.0 iterations, ~7 % slower (benchmarks/RESULTS.md).
 THETA_REFRESH = 0.5
-REFRESH_PREDICTED = 4.0
-REFRESH_ITERATIONS = 8
+REFRESH_PREDICTED = 8.0
+REFRESH_ITERATIONS = 12
 #: A contraction rate above THETA_STAGNATION with an increment below STAGNATION_LEVEL·tol means
 #: the iterates are dominated by round-off: they are accepted.
 THETA_STAGNATION = 0.9
