@@ -81,7 +81,10 @@ def test_predicates():
     assert not bool(nw.converged(50.0, 0.01, t, t))  # stale Jacobian: 10x stricter
     assert not bool(nw.converged(50.0, 0.01, f, f))  # no rate known yet
     assert bool(nw.diverged(3.0, f, f)) and not bool(nw.diverged(3.0, f, t))  # only with a fresh Jacobian
-    assert bool(nw.stagnated_at_roundoff(0.95, 10.0, f)) and not bool(nw.stagnated_at_roundoff(0.95, 1e5, f))
+    assert bool(nw.stagnated_at_roundoff(0.95, 10.0, f, f)) and not bool(nw.stagnated_at_roundoff(0.95, 1e5, f, f))
+    # a reused Jacobian that contracts slowly at 1e-12 is not at round-off (it is refreshed)
+    assert bool(nw.stagnated_at_roundoff(0.95, 100.0, f, f)) and not bool(nw.stagnated_at_roundoff(0.95, 100.0, f, t))
+    assert bool(nw.stagnated_at_roundoff(0.95, nw.ROUNDOFF_LEVEL, f, t))
     assert bool(nw.needs_refresh(0.6, 1e6, 2, f, t))  # slow contraction while far from round-off
     assert not bool(nw.needs_refresh(0.6, 5.0, 2, f, t))  # at round-off the rate is noise
     assert bool(nw.needs_refresh(0.6, 100.0, 2, f, t))  # 1e-12: slow, not yet round-off

@@ -28,15 +28,18 @@ __all__ = ["JacobianCache", "NewtonInfo", "NewtonOptions", "empty_jacobian_cache
 #: A reused Jacobian is refreshed (see ``needs_refresh``) when, above round-off, it contracts
 #: slower than THETA_REFRESH or its rate predicts more than REFRESH_PREDICTED further
 #: iterations, and in any case after REFRESH_ITERATIONS iterations. A fresh Jacobian and its
-#: inverse cost 10-20 iterations on CPU (falling disk, s = 5: 60 µs against 3 µs); with
-#: (8, 12) instead of (4, 8) its constant steps at h = 0.25 take 0.56 instead of 1.0 Jacobians
-#: per step and run ~23 % faster; steps near round-off (particle, h = 0.0024) take 5.8
-#: instead of 5.0 iterations, ~7 % slower (benchmarks/RESULTS.md).
+#: inverse cost 10-20 iterations on CPU (falling disk, s = 5: 60 µs against 3 µs). Measured
+#: with (8, 12) against (4, 8) (``benchmarks/newton_refresh.py``): large steps, where the
+#: Jacobian drifts within a step or two, gain (falling disk s = 5 at h = 0.25: 1.19x, 0.56
+#: instead of 1.0 Jacobians per step; s = 3 at h = 0.05: 1.13x; adaptive sleigh: 1.10x);
+#: small steps that reuse one Jacobian for many steps lose a little (falling disk s = 5 at
+#: h = 0.05: 0.91x; particle at h = 0.0024: 0.92x).
 THETA_REFRESH = 0.5
 REFRESH_PREDICTED = 8.0
 REFRESH_ITERATIONS = 12
-#: A contraction rate above THETA_STAGNATION with an increment below STAGNATION_LEVEL·tol means
-#: the iterates are dominated by round-off: they are accepted.
+#: A contraction rate above THETA_STAGNATION with an increment below STAGNATION_LEVEL·tol means,
+#: with a fresh Jacobian, that the iterates are dominated by round-off: they are accepted. A
+#: reused Jacobian contracts slowly for its own reasons: it must get below ROUNDOFF_LEVEL·tol.
 THETA_STAGNATION = 0.9
 STAGNATION_LEVEL = 1e3
 #: Scaled increments up to this size are round-off noise (their ratios say nothing about the
@@ -126,10 +129,13 @@ def converged(nrm, theta_est, rate_known, stale):
     return jnp.logical_or(nrm <= 1.0, rate_test)
 
 
-def stagnated_at_roundoff(theta, nrm, first):
+def stagnated_at_roundoff(theta, nrm, first, stale):
     """The iteration no longer contracts, but the increment is already within
-    STAGNATION_LEVEL·tol: the iterates are dominated by round-off."""
-    return jnp.logical_and(~first, jnp.logical_and(theta >= THETA_STAGNATION, nrm <= STAGNATION_LEVEL))
+    STAGNATION_LEVEL·tol (ROUNDOFF_LEVEL·tol with a reused Jacobian, whose slow contraction
+    is no evidence of round-off: it is refreshed instead, see ``needs_refresh``): the iterates
+    are dominated by round-off."""
+    level = jnp.where(stale, ROUNDOFF_LEVEL, STAGNATION_LEVEL)
+    return jnp.logical_and(~first, jnp.logical_and(theta >= THETA_STAGNATION, nrm <= level))
 
 
 def diverged(theta, first, stale):
@@ -191,7 +197,7 @@ def _judge(st: NewtonState, x, dx, r, options: NewtonOptions) -> NewtonState:
     rate_known = jnp.logical_and(~first, jnp.logical_or(~stale, jnp.logical_and(st.k >= 2, st.stale)))
     theta_est = jnp.where(stale, jnp.maximum(theta, st.theta_prev), theta)
     finite = jnp.logical_and(jnp.isfinite(nrm), jnp.isfinite(res_norm))
-    ok = jnp.logical_or(converged(nrm, theta_est, rate_known, stale), stagnated_at_roundoff(theta, nrm, first))
+    ok = jnp.logical_or(converged(nrm, theta_est, rate_known, stale), stagnated_at_roundoff(theta, nrm, first, stale))
     k = st.k + 1
     result = jnp.select(
         [~finite, ok, diverged(theta, first, stale), k >= options.max_iterations],

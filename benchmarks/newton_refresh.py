@@ -1,0 +1,135 @@
+"""When to refresh a reused Newton Jacobian (issue #10): step cost under two settings of
+``lobattodae._newton``'s ``REFRESH_PREDICTED`` and ``REFRESH_ITERATIONS``.
+
+A reused Jacobian is refreshed when its contraction predicts more than ``REFRESH_PREDICTED``
+further iterations, and in any case after ``REFRESH_ITERATIONS``; the right values depend on
+what a refresh costs against an iteration. Each setting runs in its own fresh process (the
+constants are read when the step is traced), with XLA's CPU pool at one thread
+(:func:`lobattodae.set_cpu_threads`); the settings alternate, ``--rounds`` times, and each case
+reports the best of its rounds.
+
+Cases: ``method.step`` in a jitted ``fori_loop`` of constant steps (knife edge s = 5,
+h = 0.2; sleigh s = 5, h = 1; falling disk s = 3 and s = 5 at h = 0.05, s = 5 at h = 0.25),
+``solve`` with error control (sleigh to T = 1000, s = 5, tol 1e-11; falling disk to T = 200,
+s = 5, tol 1e-10), and ``solve`` of the particle at tiny constant steps (s = 3,
+h = 60/24576, where increments sit just above round-off). Per case: time, Newton iterations
+and Jacobians per step (attempt).
+
+Usage::
+
+    PYTHONPATH=src .venv/bin/python benchmarks/newton_refresh.py [--settings 4,8 8,12] [--rounds 2]
+
+Writes ``benchmarks/results/newton_refresh.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results", "newton_refresh.json")
+
+CHILD = r"""
+import json, sys, time
+import numpy as np
+import jax
+import lobattodae as L
+from lobattodae import _newton
+
+L.set_cpu_threads(1)
+_newton.REFRESH_PREDICTED, _newton.REFRESH_ITERATIONS = float(sys.argv[1]), int(sys.argv[2])
+from lobattodae.examples import get_example
+
+def best(f, k=5):
+    out = f(); ts = []
+    for _ in range(k):
+        t = time.perf_counter(); out = f(); ts.append(time.perf_counter() - t)
+    return min(ts), out
+
+res = {}
+for name, s, h, n in [("knife-edge", 5, 0.2, 5000), ("sleigh", 5, 1.0, 1000), ("falling-disk-general", 3, 0.05, 2000),
+                      ("falling-disk-general", 5, 0.05, 2000), ("falling-disk-general", 5, 0.25, 2000)]:
+    ex = get_example(name)
+    m = L.LobattoIIIAIIIB(stages=s)
+
+    def loop(q, p, lam, ex=ex, m=m, h=h, n=n):
+        st = m.init(ex.problem, 0.0, q, p, lam, ex.args, h)
+
+        def body(i, c):
+            q, p, lam, st, its, jacs = c
+            q1, p1, l1, info, st1 = m.step(ex.problem, i * h, q, p, lam, h, ex.args, st)
+            return q1, p1, l1, st1, its + info.iterations, jacs + info.n_jacobians
+
+        return jax.lax.fori_loop(0, n, body, (q, p, lam, st, 0, 0))
+
+    f = jax.jit(loop)
+    t, out = best(lambda: jax.block_until_ready(f(ex.q0, ex.p0, ex.lam0)))
+    res[f"{name}, s = {s}, h = {h:g} (step loop)"] = {"s_per_step": t / n, "newton": float(out[4]) / n,
+                                                     "jacobians": float(out[5]) / n}
+solves = [("sleigh", 5, (0.0, 1000.0), dict(rtol=1e-11, atol=1e-11)),
+          ("falling-disk-general", 5, (0.0, 200.0), dict(rtol=1e-10, atol=1e-10)),
+          ("particle", 3, (0.0, 6.0), dict(n_steps=2458))]
+for name, s, span, kw in solves:
+    ex = get_example(name)
+    m = L.LobattoIIIAIIIB(stages=s)
+    t, sol = best(lambda: L.solve(ex.problem, m, span, ex.q0, ex.p0, args=ex.args, lam0=ex.lam0,
+                                  save_every="final", **kw))
+    st = sol.stats
+    na = int(st["n_steps"]) + int(st.get("n_rejected", 0))
+    res[f"{name}, s = {s}, solve {', '.join(f'{k} = {v:g}' for k, v in kw.items())}"] = {
+        "s_per_step": t / na, "newton": float(st["n_newton"]) / na, "jacobians": float(st["n_jacobians"]) / na,
+        "solve_s": t}
+print("RESULT " + json.dumps(res))
+"""
+
+
+def run_child(predicted: float, iterations: int) -> dict:
+    proc = subprocess.run([sys.executable, "-c", CHILD, str(predicted), str(iterations)], capture_output=True,
+                          text=True, check=True, env={k: v for k, v in os.environ.items() if k != "PJRT_NPROC"})
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")][-1]
+    return json.loads(line[len("RESULT "):])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--settings", nargs="+", default=["4,8", "8,12"], help="REFRESH_PREDICTED,REFRESH_ITERATIONS")
+    ap.add_argument("--rounds", type=int, default=2)
+    a = ap.parse_args(argv)
+    sys.path.insert(0, HERE)
+    import _common as C
+
+    settings = [(float(x.split(",")[0]), int(x.split(",")[1])) for x in a.settings]
+    t0 = time.perf_counter()
+    rounds = {f"{p:g},{i}": [] for p, i in settings}
+    for r in range(a.rounds):
+        for p, i in settings:
+            rounds[f"{p:g},{i}"].append(run_child(p, i))
+            print(f"round {r + 1}/{a.rounds}: ({p:g}, {i}) done", flush=True)
+    best = {key: {case: min((rd[case] for rd in rs), key=lambda v: v["s_per_step"]) for case in rs[0]}
+            for key, rs in rounds.items()}
+    keys = list(best)
+    rows = []
+    for case in best[keys[0]]:
+        row = [case]
+        for key in keys:
+            v = best[key][case]
+            row.append(f"{1e6 * v['s_per_step']:.1f} µs, {v['newton']:.2f} it, {v['jacobians']:.2f} J")
+        row.append(f"{best[keys[0]][case]['s_per_step'] / best[keys[-1]][case]['s_per_step']:.2f}")
+        rows.append(row)
+    print(C.md_table(["case (per step)"] + [f"({k})" for k in keys] + [f"({keys[0]}) / ({keys[-1]})"], rows))
+    out = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": C.machine_info(),
+           "command": "PYTHONPATH=src .venv/bin/python benchmarks/newton_refresh.py " + " ".join(sys.argv[1:]),
+           "loadavg": C.loadavg(), "seconds": time.perf_counter() - t0, "rounds": rounds, "best": best}
+    C.write_json(out, RESULTS)
+    print(f"wrote {RESULTS} ({out['seconds']:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
