@@ -22,14 +22,17 @@ to take > 3x that, once its error stops falling below 1e-6 (best error not impro
 three settings: the round-off floor; a plateau above 1e-6 is saturation at loose tolerances,
 not a floor) or drops below 2e-13):
 
-* **lobattodae adaptive**, s = 3, 4, 5 (``LobattoIIIAIIIB(stages=s)``): ``solve`` with
+* **lobattodae adaptive**, s = 3, 4, 5, 6 (``LobattoIIIAIIIB(stages=s)``): ``solve`` with
   rtol = atol = tol, ``save_every="final"``, ``lam0`` given, ``throw=False``; the wall time
   of the whole ``solve`` call (validation, compiled loop, building the ``Solution``). The
   loop alone is in ``loop_s`` (``stats["compile_and_run_time"]``). max ‖φ‖∞ over every
   step point from ``stats["max_constraint_residual"]``; steps, rejected steps, Newton
   iterations and Jacobians from ``stats``. tol = 1e-2 ... 1e-13 in half decades.
-* **lobattodae constant steps**, s = 4 and 5 (``n_steps`` = 250·2^(k/2)); the s with the
+* **lobattodae constant steps**, s = 4, 5 and 6 (``n_steps`` = 250·2^(k/2)); the s with the
   smaller time at error 1e-8 is plotted ("best s").
+* **lobattodae reversible control**, s = 5, falling disk only (it has the reversing symmetry
+  ``(q, p) -> (q, -p)``): ``ReversibleStepSize()`` (density ‖(f, g)‖, Hairer & Söderlind)
+  with the symmetric scheme, ``first_step`` = 0.5·2^(-k/2) (it fixes ε = h₀ σ(y₀)).
 * **scipy DOP853** (``solve_ivp``, rtol = atol = tol, 1e-3 ... 2.3e-14 = scipy's floor) on
   the index-reduced ODE with a plain Python/NumPy right-hand side (by hand for the sleigh,
   SymPy-generated for the disk), validated against the library's JAX vector field;
@@ -49,9 +52,13 @@ on the sleigh, ~1.0e3 on the disk, whose heading angle grows). Time at error 1e-
 solver's Pareto front (points not beaten in both error and time), log time interpolated
 linearly in log error between the two points bracketing 1e-8.
 
+``--cpu-threads 1`` gives XLA's CPU thread pool one thread for the whole process
+(:func:`lobattodae.set_cpu_threads`), which speeds up lobattodae and leaves the other
+solvers as they are; every solver runs under the same setting.
+
 Usage (repository root)::
 
-    PYTHONPATH=src .venv/bin/python benchmarks/adaptive_wp.py [--quick] [--problems sleigh]
+    PYTHONPATH=src .venv/bin/python benchmarks/adaptive_wp.py [--quick] [--problems sleigh] [--cpu-threads 1]
     PYTHONPATH=src .venv/bin/python benchmarks/adaptive_wp.py --replot
 
 Writes ``benchmarks/results/adaptive_wp[_quick].json`` (``--problems`` merges into it) and
@@ -86,6 +93,8 @@ from engine import PID_SETS  # noqa: E402
 
 RESULTS_DIR = os.path.join(HERE, "results")
 PROBLEMS = ("sleigh", "falling-disk-general")
+#: Problems with a reversing symmetry (q, p) -> (q, -p), on which reversible step-size control applies.
+REVERSIBLE = ("falling-disk-general",)
 PNG_NAME = {"sleigh": "awp_sleigh", "falling-disk-general": "awp_falling-disk"}
 TARGET = 1e-8
 REPEAT_LIMIT_S = 5.0
@@ -107,11 +116,13 @@ def config(quick: bool) -> dict:
         return {"T": 100.0, "repeats": 1, "stages": [3, 5], "const_stages": [5],
                 "lob_tols": [1e-2, 1e-4, 1e-6, 1e-8, 1e-10], "const_N": [64, 256, 1024],
                 "dop_tols": [1e-3, 1e-5, 1e-7, 1e-9, 1e-11], "dfx_tols": [1e-3, 1e-5, 1e-7, 1e-9, 1e-11],
-                "pids": PID_SETS[:1], "ida_tols": [1e-3, 1e-5, 1e-7], "ref_h": (0.1, 0.05)}
-    return {"T": 1000.0, "repeats": 3, "stages": [3, 4, 5], "const_stages": [4, 5],
+                "pids": PID_SETS[:1], "ida_tols": [1e-3, 1e-5, 1e-7], "ref_h": (0.1, 0.05),
+                "rev_stages": [5], "rev_h0": [0.4, 0.2, 0.1]}
+    return {"T": 1000.0, "repeats": 3, "stages": [3, 4, 5, 6], "const_stages": [4, 5, 6],
             "lob_tols": half_decades(1e-2, 1e-13), "const_N": [int(round(250 * 2 ** (k / 2))) for k in range(0, 15)],
             "dop_tols": half_decades(1e-3, 1e-13) + [2.3e-14], "dfx_tols": half_decades(1e-3, 1e-15),
-            "pids": PID_SETS, "ida_tols": half_decades(1e-3, 1e-12), "ref_h": (0.1, 0.05)}
+            "pids": PID_SETS, "ida_tols": half_decades(1e-3, 1e-12), "ref_h": (0.1, 0.05),
+            "rev_stages": [5], "rev_h0": [round(0.5 * 2 ** (-k / 2), 4) for k in range(0, 9)]}
 
 
 # ------------------------------------------------------------------------- reference
@@ -330,6 +341,29 @@ def lob_constant(ex, T, q_ref, s, cfg, budget):
         cfg["const_N"], run, warm=lambda: solve(cfg["const_N"][0]), key="N")
 
 
+def lob_reversible(ex, T, q_ref, s, cfg, budget):
+    """Reversible step-size control (``ReversibleStepSize``, default density ‖(f, g)‖) with the
+    symmetric scheme; ``first_step`` sets ε = h₀ σ(y₀), so it is the swept setting."""
+    method = L.LobattoIIIAIIIB(stages=s)
+    controller = L.ReversibleStepSize()
+
+    def solve(h0):
+        return L.solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, args=ex.args, lam0=ex.lam0, first_step=h0,
+                       controller=controller, save_every="final", throw=False)
+
+    def run(h0):
+        sol = solve(h0)
+        st = sol.stats
+        n = int(st["n_steps"])
+        err = float(np.max(np.abs(np.asarray(sol.q[-1]) - q_ref))) if sol.success else math.inf
+        return {"err": err, "ok": bool(sol.success), "message": "" if sol.success else str(sol.message)[:200],
+                "steps": n, "max_phi": float(st["max_constraint_residual"]),
+                "newton_per_step": round(float(st["n_newton"]) / max(1, n), 2)}
+
+    return Sweep(f"lobattodae reversible s={s}", budget, cfg["repeats"]).go(
+        cfg["rev_h0"], run, warm=lambda: solve(cfg["rev_h0"][0]), key="first_step")
+
+
 def dop853(ode, T, y0, q_ref, cfg, budget):
     from scipy.integrate import solve_ivp
 
@@ -416,6 +450,9 @@ def run_problem(name: str, cfg: dict, budget: float) -> dict:
         runs[f"adaptive s={s}"] = lob_adaptive(ex, T, q_ref, s, cfg, budget)
     for s in cfg["const_stages"]:
         runs[f"constant s={s}"] = lob_constant(ex, T, q_ref, s, cfg, budget)
+    if name in REVERSIBLE:
+        for s in cfg["rev_stages"]:
+            runs[f"reversible s={s}"] = lob_reversible(ex, T, q_ref, s, cfg, budget)
     if val["ok"]:
         runs["DOP853"] = dop853(ode, T, y0, q_ref, cfg, budget)
         runs["Dopri8"] = dopri8(ode, T, y0, q_ref, cfg, budget)
@@ -444,6 +481,8 @@ def summarize(runs) -> dict:
         t[key] = time_at(c["points"])
     ad = {k: v for k, v in t.items() if k.startswith("adaptive") and v is not None}
     co = {k: v for k, v in t.items() if k.startswith("constant") and v is not None}
+    every = {k: v for k, v in t.items() if k.startswith(("adaptive", "constant", "reversible")) and v is not None}
+    best_any = min(every, key=every.get) if every else None
     best_ad = min(ad, key=ad.get) if ad else None
     best_co = min(co, key=co.get) if co else None
     ours = t.get(best_ad) if best_ad else None
@@ -455,11 +494,14 @@ def summarize(runs) -> dict:
             "ours_over_dopri8": ratio(ours, t.get("Dopri8")), "ours_over_dop853": ratio(ours, t.get("DOP853")),
             "ours_over_ida": ratio(ours, t.get("IDA")),
             "constant_over_dopri8": ratio(t.get(best_co) if best_co else None, t.get("Dopri8")),
-            "adaptive_over_constant": ratio(ours, t.get(best_co) if best_co else None)}
+            "adaptive_over_constant": ratio(ours, t.get(best_co) if best_co else None),
+            "ours_any": best_any, "any_over_dopri8": ratio(t.get(best_any) if best_any else None, t.get("Dopri8")),
+            "any_over_dop853": ratio(t.get(best_any) if best_any else None, t.get("DOP853"))}
 
 
 STYLE = {"adaptive s=3": ("#9ecae1", "o", "-"), "adaptive s=4": ("#4292c6", "s", "-"),
-         "adaptive s=5": ("#08306b", "D", "-"), "DOP853": ("#ff7f0e", "^", "-"),
+         "adaptive s=5": ("#08306b", "D", "-"), "adaptive s=6": ("#6a51a3", "p", "-"),
+         "reversible s=5": ("#2ca02c", "*", "-."), "DOP853": ("#ff7f0e", "^", "-"),
          "Dopri8": ("#d62728", "v", "-"), "IDA": ("#9467bd", "P", "-")}
 
 
@@ -472,7 +514,7 @@ def plot(name: str, entry: dict, path: str) -> None:
     runs, sm = entry["runs"], entry["summary"]
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 5.2), gridspec_kw={"width_ratios": [3, 2]})
     keys = [k for k in runs if k.startswith("adaptive")] + ([sm["ours_constant"]] if sm.get("ours_constant") else []) \
-        + [k for k in ("DOP853", "Dopri8", "IDA") if k in runs]
+        + [k for k in runs if k.startswith("reversible")] + [k for k in ("DOP853", "Dopri8", "IDA") if k in runs]
     for key in keys:
         c = curve(runs, key)
         pts = [p for p in c["points"] if _finite(p)]
@@ -486,6 +528,8 @@ def plot(name: str, entry: dict, path: str) -> None:
             label = f"lobattodae {key}"
         elif key.startswith("constant"):
             label = f"lobattodae {key} (n_steps)"
+        elif key.startswith("reversible"):
+            label = f"lobattodae {key} (ReversibleStepSize)"
         ts = [p["wall_s"] for p in pts]
         ax.loglog(ts, [max(p["err"], 1e-16) for p in pts], ls, color=color, marker=marker, ms=5, label=label)
         ph = [(p["wall_s"], p["max_phi"]) for p in pts if isinstance(p.get("max_phi"), float)]
@@ -507,7 +551,9 @@ def plot(name: str, entry: dict, path: str) -> None:
     ax.grid(True, which="major", alpha=0.3)
     ax2.grid(True, which="major", alpha=0.3)
     la = entry.get("loadavg_start")
-    fig.text(0.01, 0.005, f"2-core shared x86_64, load average at start {la[0] if la else '?'}; "
+    pool = (entry.get("meta", {}).get("cpu_threads") or {}).get("PJRT_NPROC")
+    fig.text(0.01, 0.005, f"2-core shared x86_64, load average at start {la[0] if la else '?'}, "
+             f"XLA CPU pool: {pool + ' thread(s)' if pool else 'default'}; "
              "lobattodae: whole solve() call; Dopri8 ‖φ‖ at one tolerance only", fontsize=7, color="gray")
     fig.tight_layout(rect=(0, 0.02, 1, 1))
     fig.savefig(path, dpi=110)
@@ -529,9 +575,12 @@ def ratio_table(out: dict) -> str:
                      f"{sm['ours_constant']} ({ms(sm['ours_constant'])})" if sm["ours_constant"] else "–",
                      ms("Dopri8"), ms("DOP853"), ms("IDA"), fmt_ratio(sm["ours_over_dopri8"]),
                      fmt_ratio(sm["ours_over_dop853"]), fmt_ratio(sm["ours_over_ida"]),
-                     fmt_ratio(sm["adaptive_over_constant"])])
-    return C.md_table(["problem", "ours (best s)", "ours constant", "Dopri8", "DOP853", "IDA", "ours/Dopri8",
-                       "ours/DOP853", "ours/IDA", "adaptive/constant"], rows)
+                     fmt_ratio(sm["adaptive_over_constant"]),
+                     f"{sm.get('ours_any')} ({ms(sm.get('ours_any'))})" if sm.get("ours_any") else "–",
+                     fmt_ratio(sm.get("any_over_dopri8")), fmt_ratio(sm.get("any_over_dop853"))])
+    return C.md_table(["problem", "ours adaptive (best s)", "ours constant", "Dopri8", "DOP853", "IDA",
+                       "adaptive/Dopri8", "adaptive/DOP853", "adaptive/IDA", "adaptive/constant",
+                       "best of ours", "best/Dopri8", "best/DOP853"], rows)
 
 
 def main(argv=None) -> int:
@@ -541,7 +590,11 @@ def main(argv=None) -> int:
     ap.add_argument("--budget", type=float, default=20.0, help="stop a solver's sweep after a call this long [s]")
     ap.add_argument("--replot", action="store_true", help="redraw the PNGs from the saved JSON")
     ap.add_argument("--watchdog", type=float, default=1800.0, help="abort with tracebacks after this many s (0: off)")
+    ap.add_argument("--cpu-threads", type=int, default=None,
+                    help="size of XLA's CPU thread pool (lobattodae.set_cpu_threads; default: XLA's)")
     a = ap.parse_args(argv)
+    if a.cpu_threads is not None:
+        L.set_cpu_threads(a.cpu_threads)  # before the first JAX computation; applies to every solver
     suffix = "_quick" if a.quick else ""
     path = os.path.join(RESULTS_DIR, f"adaptive_wp{suffix}.json")
     out = {"meta": {}, "problems": {}}
@@ -563,7 +616,8 @@ def main(argv=None) -> int:
             "command": "PYTHONPATH=src .venv/bin/python benchmarks/adaptive_wp.py " + " ".join(sys.argv[1:]),
             "lobattodae": getattr(L, "__version__", None), "lobattodae_path": os.path.dirname(L.__file__),
             "ida": ida_available()[1], "loadavg_start": C.loadavg(), "budget_s": a.budget,
-            "repeat_limit_s": REPEAT_LIMIT_S, "config": cfg}
+            "repeat_limit_s": REPEAT_LIMIT_S, "config": cfg,
+            "cpu_threads": {k: os.environ.get(k) for k in ("PJRT_NPROC", "NPROC")}}
     log(f"adaptive_wp: {meta['command']}  (load average {meta['loadavg_start']})")
     import jax.numpy as jnp
 
