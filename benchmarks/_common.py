@@ -19,6 +19,7 @@ of the example problems, for the validation).
 from __future__ import annotations
 
 import contextlib
+import datetime
 import json
 import logging
 import math
@@ -767,3 +768,21 @@ def write_json(out: dict, path: str | None) -> None:
     with open(path, "w") as fh:
         json.dump(jsonable(out), fh, indent=1)
     log(f"\nwrote {path}")
+
+
+# ------------------------------------------------------------------- fresh-process runs
+def child_result(code: str, argv: list[str], env: dict) -> dict:
+    """Run ``python -c code *argv`` in a fresh process with ``env`` and return the JSON it
+    prints after ``RESULT `` (for settings that are fixed when JAX starts, such as the size of
+    XLA's CPU thread pool, or constants read at trace time)."""
+    proc = subprocess.run([sys.executable, "-c", code, *argv], env=env, capture_output=True, text=True, check=True)
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")][-1]
+    return json.loads(line[len("RESULT "):])
+
+
+def save_run(path: str, script: str, t0: float, **data) -> None:
+    """Write a run's results with the date, machine, exact command, load and duration."""
+    out = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": machine_info(),
+           "command": f"PYTHONPATH=src .venv/bin/python benchmarks/{script} " + " ".join(sys.argv[1:]),
+           "loadavg": loadavg(), "seconds": time.perf_counter() - t0, **data}
+    write_json(out, path)

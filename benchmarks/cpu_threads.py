@@ -24,14 +24,15 @@ Writes ``benchmarks/results/cpu_threads.json``.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import os
-import subprocess
 import sys
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+import _common as C  # noqa: E402
+
 RESULTS = os.path.join(HERE, "results", "cpu_threads.json")
 
 CASES = [
@@ -91,19 +92,13 @@ def run_child(one_thread: bool) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in ("PJRT_NPROC", "NPROC")}
     if one_thread:
         env["PJRT_NPROC"] = "1"
-    proc = subprocess.run([sys.executable, "-c", CHILD, json.dumps(CASES), HERE], env=env,
-                          capture_output=True, text=True, check=True)
-    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")][-1]
-    return json.loads(line[len("RESULT "):])
+    return C.child_result(CHILD, [json.dumps(CASES), HERE], env)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rounds", type=int, default=3)
     a = ap.parse_args(argv)
-    sys.path.insert(0, HERE)
-    import _common as C
-
     t0 = time.perf_counter()
     rounds: dict = {"default": [], "one thread": []}
     for r in range(a.rounds):
@@ -116,11 +111,7 @@ def main(argv=None) -> int:
         d, o = best["default"][label], best["one thread"][label]
         rows.append([label, f"{1e6 * d:.1f}", f"{1e6 * o:.1f}", f"{d / o:.2f}"])
     print(C.md_table(["case (µs per step)", "default pool", "one thread", "default / one thread"], rows))
-    out = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": C.machine_info(),
-           "command": "PYTHONPATH=src .venv/bin/python benchmarks/cpu_threads.py " + " ".join(sys.argv[1:]),
-           "loadavg": C.loadavg(), "seconds": time.perf_counter() - t0, "rounds": rounds, "best_s_per_step": best}
-    C.write_json(out, RESULTS)
-    print(f"wrote {RESULTS} ({out['seconds']:.0f} s)")
+    C.save_run(RESULTS, "cpu_threads.py", t0, rounds=rounds, best_s_per_step=best)
     return 0
 
 

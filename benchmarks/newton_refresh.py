@@ -25,14 +25,14 @@ Writes ``benchmarks/results/newton_refresh.json``.
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import os
-import subprocess
 import sys
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+import _common as C  # noqa: E402
+
 RESULTS = os.path.join(HERE, "results", "newton_refresh.json")
 
 CHILD = r"""
@@ -90,10 +90,8 @@ print("RESULT " + json.dumps(res))
 
 
 def run_child(predicted: float, iterations: int) -> dict:
-    proc = subprocess.run([sys.executable, "-c", CHILD, str(predicted), str(iterations)], capture_output=True,
-                          text=True, check=True, env={k: v for k, v in os.environ.items() if k != "PJRT_NPROC"})
-    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")][-1]
-    return json.loads(line[len("RESULT "):])
+    env = {k: v for k, v in os.environ.items() if k != "PJRT_NPROC"}
+    return C.child_result(CHILD, [str(predicted), str(iterations)], env)
 
 
 def main(argv=None) -> int:
@@ -101,9 +99,6 @@ def main(argv=None) -> int:
     ap.add_argument("--settings", nargs="+", default=["4,8", "8,12"], help="REFRESH_PREDICTED,REFRESH_ITERATIONS")
     ap.add_argument("--rounds", type=int, default=2)
     a = ap.parse_args(argv)
-    sys.path.insert(0, HERE)
-    import _common as C
-
     settings = [(float(x.split(",")[0]), int(x.split(",")[1])) for x in a.settings]
     t0 = time.perf_counter()
     rounds = {f"{p:g},{i}": [] for p, i in settings}
@@ -123,11 +118,7 @@ def main(argv=None) -> int:
         row.append(f"{best[keys[0]][case]['s_per_step'] / best[keys[-1]][case]['s_per_step']:.2f}")
         rows.append(row)
     print(C.md_table(["case (per step)"] + [f"({k})" for k in keys] + [f"({keys[0]}) / ({keys[-1]})"], rows))
-    out = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": C.machine_info(),
-           "command": "PYTHONPATH=src .venv/bin/python benchmarks/newton_refresh.py " + " ".join(sys.argv[1:]),
-           "loadavg": C.loadavg(), "seconds": time.perf_counter() - t0, "rounds": rounds, "best": best}
-    C.write_json(out, RESULTS)
-    print(f"wrote {RESULTS} ({out['seconds']:.0f} s)")
+    C.save_run(RESULTS, "newton_refresh.py", t0, rounds=rounds, best=best)
     return 0
 
 
