@@ -3,11 +3,12 @@
 XLA:CPU runs a compiled program as a graph of small kernels and hands kernels that could run
 concurrently to its thread pool. A step of lobattodae is a long chain of tiny kernels
 (systems of 10 to 100 unknowns), so the hand-offs cost more than the concurrency gains: with
-a one-thread pool a falling-disk step (s = 5) runs ~1.7× faster on the 2-core test machine,
-and batches under ``jax.vmap`` 15–20 % faster (``benchmarks/RESULTS.md``). jaxlib reads the
+a one-thread pool a step runs 1.5–2.1× faster on the 2-core test machine (falling disk 2.0×),
+and a ``jax.vmap`` batch 1.1× (``benchmarks/cpu_threads.py``, ``benchmarks/RESULTS.md``). jaxlib reads the
 pool size from ``$PJRT_NPROC`` (else ``$NPROC``, else the number of CPUs) once, when JAX
 creates its CPU backend at the process's first computation, so this is a process-wide
-setting: it also slows large dense operations elsewhere in the process, which is why it is
+setting: it also slows large dense operations elsewhere in the process (a 2000×2000 matrix
+product: 46 → 91 ms on the 2-core machine), which is why it is
 not the default of the library (it is the default of the ``lobattodae`` command line).
 Sharding over several forced CPU devices needs a larger pool (``docs/ensembles.md``).
 """

@@ -456,10 +456,11 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
 
     **CPU devices.** Each CPU device's part runs on a thread of XLA's CPU thread pool (one
     thread per CPU, or ``$PJRT_NPROC``, or ``$NPROC``), and jaxlib's batched LU queues its
-    tasks on the same pool and waits: with as many devices as pool threads the run can hang (JAX 0.10.2, 2 forced
-    devices on 2 cores, 64 trajectories per device). So by default at most ``pool - 1`` CPU
-    devices are used (with a ``RuntimeWarning``); set ``PJRT_NPROC`` above the device count before
-    JAX starts to use them all. Explicit ``devices`` are used as given, with a warning.
+    tasks on the same pool and waits: with as many devices as pool threads the run can hang
+    (JAX 0.10.2, 2 forced devices on 2 cores, 64 trajectories per device). So by default at
+    most ``pool - 1`` CPU devices are used (with a ``RuntimeWarning``); set ``PJRT_NPROC``
+    above the device count before JAX starts to use them all. Explicit ``devices`` are used
+    as given, with a warning.
 
     **Several processes.** Under ``jax.distributed.initialize`` call ``ensemble`` in every
     process with the same arguments (the global batch, e.g. the same memory-mapped file):
