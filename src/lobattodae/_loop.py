@@ -302,13 +302,14 @@ def _step_record(a: Attempt) -> Record:
 
 
 def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: State, args, length: int,
-        every=1, t_eval=None, max_attempts: int | None = None):
+        every=1, t_eval=None, max_attempts: int | None = None, capacity: int | None = None):
     """Advance ``state`` by at most ``max_attempts`` step attempts (default ``length``); return
     ``(state, Chunk)``.
 
     The loop also stops when the controller is done, a step fails, or the buffers are full
-    (``length`` rows; with ``output.t_eval`` a step can pass several rows of ``t_eval``, the
-    rest are written by the next call, which starts by writing the rows its state has passed).
+    (``length`` rows, or ``capacity`` step-point rows: see :func:`row_capacity`; with
+    ``output.t_eval`` a step can pass several rows of ``t_eval``, the rest are written by the
+    next call, which starts by writing the rows its state has passed).
     ``every``: keep every k-th step point (and the last); ``t_eval``: (L,) output times in the
     direction of integration, NaN-padded (with ``output.t_eval``). A failed step ends the loop
     with ``state.result`` set and ``state`` left at the last step point.
@@ -321,6 +322,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
     t_eval = jnp.full((1,), jnp.nan, dtype) if t_eval is None else jnp.asarray(t_eval, dtype)
     every = jnp.asarray(every, jnp.int32)
     max_attempts = length if max_attempts is None else max_attempts
+    capacity = length if capacity is None or output.t_eval else min(capacity, length)
 
     def pending(st, n_rows):
         k = jnp.minimum(st.k_eval, t_eval.shape[0] - 1)
@@ -354,7 +356,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
         return (
             (st.result == Result.SUCCESSFUL) & ~controller.done(st.controller) & (attempts < max_attempts)
-            & (n_rows < length) & (n_events + n_ev <= length) & ~pending(st, n_rows)
+            & (n_rows < capacity) & (n_events + n_ev <= length) & ~pending(st, n_rows)
         )
 
     def body(carry):
@@ -368,7 +370,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         else:
             save = a.kept & ((new.n_accepted % every == 0) | a.finished)
             floats, ints = _pack_row(_step_record(a))
-            at = jnp.where(save, n_rows, length)
+            at = jnp.where(save, n_rows, capacity)
             rows = (rows[0].at[at].set(floats, mode="drop"), rows[1].at[at].set(ints, mode="drop"))
             n_rows = n_rows + save.astype(jnp.int32)
         if output.dense:
@@ -393,7 +395,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         ev_idx = ev_idx.at[at].set(stopping, mode="drop")
         return ev_rows, ev_idx, n_events + a.final_event.astype(jnp.int32)
 
-    rows = (jnp.full((length, 2 * n + m + 4), jnp.nan, dtype), jnp.zeros((length, 3), jnp.int32))
+    rows = (jnp.full((capacity, 2 * n + m + 4), jnp.nan, dtype), jnp.zeros((capacity, 3), jnp.int32))
     zero = jnp.asarray(0, jnp.int32)
     state, rows, n_rows = flush(state, rows, zero, state.last)
     d_size = 2 + 2 * n + method.stages * (2 * n + m)
@@ -468,10 +470,25 @@ def _init_packed(problem, method, controller, output, packing, t0, t1, options, 
     return packing.pack(init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args))
 
 
-@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output", "packing", "length"))
-def _run_packed(problem, method, controller, output, packing, floats, ints, args, length, every, t_eval):
-    state, chunk = run(problem, method, controller, output, packing.unpack(floats, ints), args, length, every, t_eval)
+@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output", "packing", "length",
+                                             "capacity"))
+def _run_packed(problem, method, controller, output, packing, fresh, floats, ints, start, args, length, every, t_eval,
+                capacity):
+    """:func:`run` from the packed state, or (``fresh``) from the state :func:`init_state` makes of
+    ``start = (t0, t1, options, q0, p0, lam0)``: a run's first chunk needs no call of its own to
+    initialise, and every chunk runs the same compiled program."""
+    state = jax.lax.cond(fresh, lambda: init_state(problem, method, controller, output, *start, args),
+                         lambda: packing.unpack(floats, ints))
+    state, chunk = run(problem, method, controller, output, state, args, length, every, t_eval, capacity=capacity)
     return packing.pack(state), chunk
+
+
+def row_capacity(length: int, every: int) -> int:
+    """Step-point rows a chunk of ``length`` attempts can need when keeping every ``every``-th
+    one (and the last), rounded up to a power of two (few distinct buffer shapes to compile):
+    a sparse output (``save_every="final"``) does not allocate, fill and return ``length``
+    rows per chunk."""
+    return min(length, 1 << (length // every + 1).bit_length())
 
 
 _PACKINGS: dict = {}
@@ -495,14 +512,34 @@ def _state_packing(problem, method, controller, output, t0, t1, options, q0, p0,
     return packing
 
 
+def _start(t0, t1, options: ControlOptions, q0, p0, lam0) -> tuple:
+    """``(t0, t1, options, q0, p0, lam0)`` as host arrays of fixed dtypes: one compiled signature
+    whatever Python or NumPy types the caller used."""
+    t0, t1, q0, p0, lam0 = (np.asarray(x, np.float64) for x in (t0, t1, q0, p0, lam0))
+    options = ControlOptions(np.asarray(options.n, np.int32), *(np.asarray(x, np.float64) for x in options[1:]))
+    return t0, t1, options, q0, p0, lam0
+
+
 def init_host(problem, method, controller, output: Output, t0, t1, options: ControlOptions, q0, p0, lam0,
               args) -> tuple[State, StatePacking]:
     """:func:`init_state`, compiled, with the state returned to the host (NumPy arrays) and the
     layout to hand to :func:`run_host` with it."""
-    t0, t1, q0, p0, lam0 = (np.asarray(x, np.float64) for x in (t0, t1, q0, p0, lam0))  # host arrays: cheap
-    packing = _state_packing(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
-    packed = _init_packed(problem, method, controller, output, packing, t0, t1, options, q0, p0, lam0, args)
+    start = _start(t0, t1, options, q0, p0, lam0)
+    packing = _state_packing(problem, method, controller, output, *start, args)
+    packed = _init_packed(problem, method, controller, output, packing, *start, args)
     return packing.unpack(*jax.device_get(packed)), packing
+
+
+def start_host(problem, method, controller, output: Output, t0, t1, options: ControlOptions, q0, p0, lam0, args,
+               length: int, every=1, t_eval=None) -> tuple[State, Chunk, StatePacking]:
+    """:func:`init_host` and the first :func:`run_host` in one compiled call (one dispatch and
+    one state transfer less: most of a short run's fixed cost); returns the state after the
+    chunk, the chunk and the layout to hand to :func:`run_host` for the next chunks."""
+    start = _start(t0, t1, options, q0, p0, lam0)
+    packing = _state_packing(problem, method, controller, output, *start, args)
+    packed = packing.empty()
+    return *_run_chunk(problem, method, controller, output, packing, True, packed, start, args, length, every,
+                       t_eval), packing
 
 
 def run_host(problem, method, controller, output: Output, packing: StatePacking, state: State, args, length: int,
@@ -510,8 +547,15 @@ def run_host(problem, method, controller, output: Output, packing: StatePacking,
     """:func:`run`, compiled once per (problem, method, controller, output, shapes, length), from
     and to a state on the host: it travels packed (:mod:`lobattodae._packing`), two arrays
     instead of fifty, which is most of the cost of a short chunk's dispatch."""
-    packed, chunk = _run_packed(problem, method, controller, output, packing, *packing.pack(state, np), args, length,
-                                every, t_eval)
+    n, m = np.shape(state.q)[-1], np.shape(state.lam)[-1]
+    unused = _start(0.0, 0.0, ControlOptions(0, 0.0, 0.0, 0.0, 0.0), np.zeros(n), np.zeros(n), np.zeros(m))
+    return _run_chunk(problem, method, controller, output, packing, False, packing.pack(state, np), unused, args,
+                      length, every, t_eval)
+
+
+def _run_chunk(problem, method, controller, output, packing, fresh, packed, start, args, length, every, t_eval):
+    packed, chunk = _run_packed(problem, method, controller, output, packing, np.asarray(fresh), *packed, start, args,
+                                length, every, t_eval, row_capacity(length, int(every)))
     return packing.unpack(*jax.device_get(packed)), chunk
 
 

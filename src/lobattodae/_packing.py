@@ -67,6 +67,13 @@ class StatePacking:
         return (xp.concatenate(floats).astype(np.float64) if floats else xp.zeros(0, np.float64),
                 xp.concatenate(ints).astype(np.int32) if ints else xp.zeros(0, np.int32))
 
+    def empty(self) -> tuple[np.ndarray, np.ndarray]:
+        """Zero ``(floats, ints)`` of this layout's sizes (NumPy)."""
+        sizes = [0, 0]
+        for in_floats, _, stop, _, _ in self._slots:
+            sizes[not in_floats] = max(sizes[not in_floats], stop)
+        return np.zeros(sizes[0], np.float64), np.zeros(sizes[1], np.int32)
+
     def unpack(self, floats, ints):
         """``(floats, ints) -> tree`` (JAX or NumPy arrays; on the host, NumPy views and scalars)."""
         leaves = []

@@ -1,8 +1,9 @@
 """``solve``: integrate a partitioned index-2 DAE over an interval and return a :class:`Solution`.
 
 The order of work: validate every option (paths included) → validate the problem and the
-initial values → the loop :class:`~lobattodae._loop.State` → compiled chunks of the loop
-(progress, Ctrl-C, checkpoints, recovery of failed steps) → :class:`Solution`.
+initial values → compiled chunks of the loop, the first of which also makes the loop
+:class:`~lobattodae._loop.State` (progress, Ctrl-C, checkpoints, recovery of failed steps)
+→ :class:`Solution`.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from ._errors import LobattoDAEInputError, NewtonFailure
 from ._controllers import ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
 from ._dense import DenseOutput
 from ._events import as_events
-from ._loop import CHUNK, Output, Record, State, init_host, run_host
+from ._loop import CHUNK, Output, Record, State, init_host, run_host, start_host
 from ._results import Result
 from ._stepper import LobattoIIIAIIIB, for_error_control
 from ._validate import check_float64, check_tolerance_attainable, validate_and_residual
@@ -580,19 +581,29 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
     _check_events(opt.output.events, opt.t0, q0, p0, args)
     report = _progress_reporter(progress, opt)
     controller, output = opt.controller, opt.output
-    state, packing = init_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0, p0, lam0, args)
-    run = _Progress.start(state, opt)
+
+    def initial():
+        state, packing = init_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0, p0, lam0, args)
+        return _Progress.start(state, opt), packing
+
     meta = _run_identity(problem, method, args, opt, q0, p0, lam0) if opt.checkpoint else None
+    run = packing = None  # a fresh run computes its initial state in its first chunk's compiled call
     if opt.checkpoint and opt.resume and _checkpoint.exists(opt.checkpoint):
-        run = _resume(opt, meta, state)
+        run, packing = initial()
+        run = _resume(opt, meta, run.state)
     t_eval = _padded_t_eval(opt)
     failed = False
     start = time.perf_counter()
-    last_saved = int(run.state.n_accepted)
+    last_saved = 0 if run is None else int(run.state.n_accepted)
     try:
-        while not _finished(opt, run.state) and not interrupted():
-            state, chunk = run_host(problem, method, controller, output, packing, run.state, args, opt.chunk, opt.every,
-                                    t_eval)
+        while not interrupted() and (run is None or not _finished(opt, run.state)):
+            if run is None:
+                state, chunk, packing = start_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0,
+                                                   p0, lam0, args, opt.chunk, opt.every, t_eval)
+                run = _Progress.start(state, opt)
+            else:
+                state, chunk = run_host(problem, method, controller, output, packing, run.state, args, opt.chunk,
+                                        opt.every, t_eval)
             rows, dense, events = _numpy_chunk(run, chunk)
             if int(state.result) not in (Result.SUCCESSFUL, Result.EVENT):
                 recovered = None
@@ -615,6 +626,8 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
                 last_saved = done
     except KeyboardInterrupt:  # a second Ctrl-C, or one outside the main thread's handler
         pass
+    if run is None:  # interrupted before the first chunk
+        run, packing = initial()
     if isinstance(report, _ProgressBar):
         report.close()
     finished = _finished(opt, run.state)
