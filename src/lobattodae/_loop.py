@@ -175,7 +175,7 @@ def unpack_dense(rows, s: int, n: int, m: int) -> DenseStep:
 class Chunk(NamedTuple):
     """What one :func:`run` recorded (rows past the counts are NaN / unused)."""
 
-    rows: Record
+    rows: Any  # (floats, ints) packed rows (_pack_row) from run; a Record of them from run_host
     n_rows: jax.Array
     dense: Any  # (length, D) packed DenseStep rows, or None
     n_dense: jax.Array
@@ -405,7 +405,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
     buf = (rows, n_rows, dense, zero, ev_rows, ev_idx, zero)
     state, buf, _ = jax.lax.while_loop(running, body, (state, buf, zero))
     (floats, ints), n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
-    return state, Chunk(_unpack_rows(floats, ints, n, m), n_rows, dense, n_dense, ev_rows, ev_idx, n_events)
+    return state, Chunk((floats, ints), n_rows, dense, n_dense, ev_rows, ev_idx, n_events)
 
 
 class Steps(NamedTuple):
@@ -554,9 +554,13 @@ def run_host(problem, method, controller, output: Output, packing: StatePacking,
 
 
 def _run_chunk(problem, method, controller, output, packing, fresh, packed, start, args, length, every, t_eval):
-    packed, chunk = _run_packed(problem, method, controller, output, packing, np.asarray(fresh), *packed, start, args,
-                                length, every, t_eval, row_capacity(length, int(every)))
-    return packing.unpack(*jax.device_get(packed)), chunk
+    """One compiled chunk; its output comes to the host in one transfer, and the rows are
+    unpacked there (NumPy views)."""
+    out = _run_packed(problem, method, controller, output, packing, np.asarray(fresh), *packed, start, args, length,
+                      every, t_eval, row_capacity(length, int(every)))
+    packed, chunk = jax.device_get(out)
+    n, m = start[3].shape[-1], start[5].shape[-1]
+    return packing.unpack(*packed), chunk._replace(rows=_unpack_rows(*chunk.rows, n, m))
 
 
 class IntegrateResult(NamedTuple):

@@ -659,14 +659,13 @@ def _check_events(events, t0, q0, p0, args) -> None:
 
 
 def _numpy_chunk(run: _Progress, chunk):
-    """The rows, dense-output data and event zeros of a chunk, appended to the run's (NumPy).
+    """The rows, dense-output data and event zeros of a chunk (NumPy), appended to the run's.
 
-    The used rows are copied out of the chunk's buffers (``np.asarray`` of a JAX array is a
-    view of it), so that the buffers (``chunk_size`` rows each) are freed: with ``save_every``
-    a chunk uses few of them."""
+    The used rows are copied out of the chunk's buffers, so that the buffers (up to
+    ``chunk_size`` rows each) are freed: with ``save_every`` a chunk uses few of them."""
 
     def used(x, k):
-        return np.array(np.asarray(x)[:k])
+        return np.array(x[:k])
 
     rows, dense, events = run.rows, run.dense, run.events
     rows = rows.append(tuple(used(x, int(chunk.n_rows)) for x in chunk.rows))
@@ -698,7 +697,7 @@ def _recover_step(problem, method, args, state: State):
         count = int(chunk.n_rows)
         if int(sub.result) != Result.SUCCESSFUL or count != 1 << j:
             continue
-        rows = Record(*(np.asarray(x)[:count] for x in chunk.rows))
+        rows = Record(*(x[:count] for x in chunk.rows))
         row = rows._replace(
             **{f: getattr(rows, f)[-1:] for f in ("t", "q", "p", "lam", "constraint", "drift")},
             iterations=np.asarray([rows.iterations.sum()], np.int32),
