@@ -8,7 +8,7 @@ import pytest
 
 import lobattodae as L
 from lobattodae._controllers import ConstantStepSize, ControlOptions, StepReport
-from lobattodae._loop import Output, init_host, run_host
+from lobattodae._loop import Output, init_host, row_capacity, run_host, start_host
 from lobattodae.examples import get_example
 
 
@@ -94,6 +94,49 @@ def test_chunks_give_the_same_numbers_as_one_run(knife):
         rows.append(np.asarray(r.rows.q)[: int(r.n_rows)])
     np.testing.assert_array_equal(np.concatenate(rows), np.asarray(rec.q)[:60])
     np.testing.assert_array_equal(np.asarray(part.q), np.asarray(whole.q))
+
+
+def test_the_first_chunk_initialises_the_state_it_would_get_from_init_host(knife):
+    """start_host (init and first chunk in one compiled call) gives the numbers, bit for bit,
+    of init_host followed by run_host, and hands on a state the next run_host continues from."""
+    m = L.LobattoIIIAIIIB(stages=3)
+    c = ConstantStepSize()
+    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+    out = Output()
+    start = (f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0), f64(knife.p0), f64(knife.lam0))
+    state, packing = init_host(knife.problem, m, c, out, *start, knife.args)
+    ref_state, ref = run_host(knife.problem, m, c, out, packing, state, knife.args, 64)
+    first, chunk, packing2 = start_host(knife.problem, m, c, out, *start, knife.args, 32)
+    assert packing2 == packing and int(chunk.n_rows) == 32 and int(first.n_accepted) == 32
+    rest, chunk2 = run_host(knife.problem, m, c, out, packing2, first, knife.args, 64)
+    for f in ("t", "q", "p", "lam", "iterations"):
+        got = np.concatenate([getattr(chunk.rows, f)[:32], getattr(chunk2.rows, f)[: int(chunk2.n_rows)]])
+        np.testing.assert_array_equal(got, np.asarray(getattr(ref.rows, f))[:60])
+    np.testing.assert_array_equal(np.asarray(rest.q), np.asarray(ref_state.q))
+
+
+@pytest.mark.parametrize("length", [1, 16, 100, 2048])
+@pytest.mark.parametrize("every", [1, 2, 3, 7, 100, 2**31 - 1])
+def test_row_capacity_holds_every_row_a_chunk_can_keep(length, every):
+    """Saved rows in a chunk of ``length`` attempts: the multiples of ``every`` among ≤ length
+    consecutive step counts (≤ length // every + 1) and the final step."""
+    cap = row_capacity(length, every)
+    power_of_two = cap & (cap - 1) == 0
+    assert cap == length or (cap >= length // every + 2 and power_of_two and cap < length)
+
+
+def test_a_sparse_output_chunk_runs_its_whole_length(knife):
+    """With save_every=5 the chunk's buffer is smaller than its length, yet the chunk runs every
+    attempt it may (a too-small buffer would end it early) and keeps exactly the 5th rows."""
+    m = L.LobattoIIIAIIIB(stages=3)
+    c = ConstantStepSize()
+    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+    start = (f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0), f64(knife.p0), f64(knife.lam0))
+    assert row_capacity(64, 5) < 64
+    state, chunk, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64, 5)
+    _, full, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64)
+    assert int(state.n_accepted) == 60 and int(chunk.n_rows) == 12
+    np.testing.assert_array_equal(chunk.rows.q[:12], full.rows.q[4:60:5])
 
 
 def test_forward_mode_through_integrate_matches_central_differences(knife):

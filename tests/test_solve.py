@@ -262,3 +262,24 @@ def test_small_steps_do_not_stall_newton():
     ex = get_example("particle")
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 6.0), ex.q0, ex.p0, n_steps=2458, args=ex.args)
     assert sol.success and np.max(sol.stats["newton_iterations"]) <= REFRESH_ITERATIONS
+
+
+def test_ctrl_c_before_the_first_chunk_returns_the_initial_point(knife, monkeypatch, tmp_path):
+    """The first chunk also builds the loop state; a Ctrl-C that arrives before it (during
+    validation or compilation) still returns the initial point with status INTERRUPTED, and a
+    checkpoint written then resumes to the uninterrupted numbers."""
+    import contextlib
+
+    import lobattodae._solve as S
+
+    ref = _solve(knife, n=40)
+    monkeypatch.setattr(S, "_deferred_interrupts", lambda: contextlib.nullcontext(lambda: True))
+    path = tmp_path / "run.npz"
+    sol = _solve(knife, n=40, checkpoint=path)
+    assert sol.status == L.Result.INTERRUPTED and sol.stats["n_steps"] == 0
+    np.testing.assert_array_equal(sol.t, [knife.t_span[0]])
+    np.testing.assert_array_equal(sol.q, np.asarray(knife.q0, np.float64)[None])
+    monkeypatch.undo()
+    full = _solve(knife, n=40, checkpoint=path, resume=True)
+    for name in ("t", "q", "p", "lam"):
+        np.testing.assert_array_equal(getattr(full, name), getattr(ref, name))

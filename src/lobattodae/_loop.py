@@ -670,7 +670,7 @@ def _integrate_adaptive(problem, method, controller, max_steps, differentiable, 
         return _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval)
     length = max_steps if t_eval is None else t_eval.shape[0]
     state, chunk = run(problem, method, controller, output, state, args, length, 1, t_eval, max_attempts=max_steps)
-    rec = chunk.rows
+    rec = _unpack_rows(*chunk.rows, q0.shape[-1], lam0.shape[-1])
     reached = controller.done(state.controller) | (t_eval is not None and chunk.n_rows == length)  # every row written
     status = jnp.where((state.result == Result.SUCCESSFUL) & ~reached, Result.MAX_STEPS, state.result).astype(jnp.int32)
     if t_eval is None:

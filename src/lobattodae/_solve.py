@@ -627,7 +627,7 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
     except KeyboardInterrupt:  # a second Ctrl-C, or one outside the main thread's handler
         pass
     if run is None:  # interrupted before the first chunk
-        run, packing = initial()
+        run, _ = initial()
     if isinstance(report, _ProgressBar):
         report.close()
     finished = _finished(opt, run.state)
