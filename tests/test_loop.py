@@ -77,13 +77,17 @@ def test_constant_controller_lands_exactly_on_t1():
     assert int(st2.k) == int(st.k) and not bool(accept) and int(result) == 1  # a failed step ends the run
 
 
+def _sixty_steps(knife):
+    """``(t0, t1, options, q0, p0, lam0)`` of 60 constant steps of the knife edge on [0, 3]."""
+    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+    return f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0), f64(knife.p0), f64(knife.lam0)
+
+
 def test_chunks_give_the_same_numbers_as_one_run(knife):
     m = L.LobattoIIIAIIIB(stages=3)
     c = ConstantStepSize()
-    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
     out = Output()
-    state, packing = init_host(knife.problem, m, c, out, f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0),
-                               f64(knife.p0), f64(knife.lam0), knife.args)
+    state, packing = init_host(knife.problem, m, c, out, *_sixty_steps(knife), knife.args)
     whole, chunk = run_host(knife.problem, m, c, out, packing, state, knife.args, 64)
     rec = chunk.rows
     assert int(chunk.n_rows) == 60 and np.all(np.isnan(np.asarray(rec.q[60:])))
@@ -101,9 +105,8 @@ def test_the_first_chunk_initialises_the_state_it_would_get_from_init_host(knife
     of init_host followed by run_host, and hands on a state the next run_host continues from."""
     m = L.LobattoIIIAIIIB(stages=3)
     c = ConstantStepSize()
-    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
     out = Output()
-    start = (f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0), f64(knife.p0), f64(knife.lam0))
+    start = _sixty_steps(knife)
     state, packing = init_host(knife.problem, m, c, out, *start, knife.args)
     ref_state, ref = run_host(knife.problem, m, c, out, packing, state, knife.args, 64)
     first, chunk, packing2 = start_host(knife.problem, m, c, out, *start, knife.args, 32)
@@ -130,8 +133,7 @@ def test_a_sparse_output_chunk_runs_its_whole_length(knife):
     attempt it may (a too-small buffer would end it early) and keeps exactly the 5th rows."""
     m = L.LobattoIIIAIIIB(stages=3)
     c = ConstantStepSize()
-    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-    start = (f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0), f64(knife.p0), f64(knife.lam0))
+    start = _sixty_steps(knife)
     assert row_capacity(64, 5) < 64
     state, chunk, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64, 5)
     _, full, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64)
