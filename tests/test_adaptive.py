@@ -144,6 +144,33 @@ def test_terminal_event_on_the_sleigh_heading_matches_the_closed_form(sleigh, me
     assert abs(sol.q[-1, 2] - target) < 1e-9
 
 
+def test_solving_again_with_the_same_event_function_does_not_recompile(sleigh, method):
+    """The loop is cached per Event(fn, terminal, direction): equal fields, one compilation."""
+    import jax.monitoring
+
+    compiles = []
+
+    def listener(name, secs, **kw):
+        if name.endswith("backend_compile_duration"):
+            compiles.append(name)
+
+    def heading(t, q, p, args):
+        return q[2] - 0.4
+
+    heading.terminal = True
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        first = _solve(sleigh, method, rtol=1e-8, atol=1e-8, events=heading)
+        n_first = len(compiles)
+        again = [_solve(sleigh, method, rtol=r, atol=r, events=heading) for r in (1e-8, 1e-9)]
+        bare = _solve(sleigh, method, rtol=1e-8, atol=1e-8, events=L.Event(heading, terminal=1))
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    assert n_first > 0 and len(compiles) == n_first
+    assert all(s.status == L.Result.EVENT for s in [first, *again, bare])
+    assert bare.t_events[0][0] == first.t_events[0][0] == again[0].t_events[0][0]
+
+
 def test_non_terminal_events_with_direction(sleigh, method):
     def x_rising(t, q, p, args):
         return p[1] - 1.1

@@ -1,7 +1,10 @@
 """lobattodae: high-order Lobatto IIIA-IIIB integrators for partitioned index-2 DAEs.
 
-Public namespaces: this module, :mod:`lobattodae.examples` (test problems) and
-:mod:`lobattodae.conditions` (simplifying assumptions and hypotheses of RK pairs).
+Public namespaces: this module, :mod:`lobattodae.examples` (test problems),
+:mod:`lobattodae.conditions` (simplifying assumptions and hypotheses of RK pairs) and
+:mod:`lobattodae.mechanics` (models from SymPy; the ``lobattodae[mechanics]`` extra), each
+also an attribute of this module, imported on first use (``lobattodae.examples.knife_edge()``
+after ``import lobattodae``).
 
 Importing lobattodae switches JAX to float64 (``jax_enable_x64``): the methods are
 designed for, and tested in, double precision. With ``LOBATTODAE_CACHE_DIR`` set it also
@@ -48,6 +51,24 @@ from ._stepper import LobattoIIIAIIIB, StepInfo, StepperState  # noqa: E402
 from ._tableau import LobattoPair, lobatto_iiia, lobatto_iiib, lobatto_nodes, lobatto_pair, lobatto_weights  # noqa: E402
 
 __version__ = "0.1.0"
+
+#: Subpackages reachable as attributes without their own import (``lobattodae.examples``
+#: after ``import lobattodae``), loaded on first use: ``mechanics`` needs SymPy (the
+#: ``lobattodae[mechanics]`` extra) and says so when it is missing.
+_SUBMODULES = ("conditions", "examples", "mechanics")
+
+
+def __getattr__(name):
+    if name in _SUBMODULES:
+        import importlib
+
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_SUBMODULES))
+
 
 # Opt-in persistent compilation cache for library users: set LOBATTODAE_CACHE_DIR.
 import os as _os  # noqa: E402
