@@ -230,6 +230,15 @@ def test_adaptive_resume_is_bitwise_identical(sleigh, method, tmp_path, ctrl_c_e
     np.testing.assert_array_equal(full.lam, ref.lam)
 
 
+@pytest.mark.parametrize("controller", [None, L.ReversibleStepSize()], ids=["PI", "reversible"])
+def test_max_step_bounds_every_step_the_first_included(sleigh, method, controller):
+    """Loose tolerances and a first step five times max_step: no step exceeds max_step."""
+    sol = _solve(sleigh, method, rtol=1e-2, atol=1e-2, first_step=0.5, max_step=0.1, controller=controller)
+    assert sol.success
+    h = np.diff(sol.t)
+    assert h.max() <= 0.1 * (1 + 1e-12) and h[0] == pytest.approx(0.1, rel=1e-12)
+
+
 def test_integrate_adaptive_is_vmappable_and_reports_max_steps(sleigh, method):
     import jax
     import jax.numpy as jnp

@@ -324,8 +324,9 @@ def test_damaged_row_segment_is_refused_with_one_clear_error(setup, tmp_path, da
         blob = open(segment, "rb").read()
         with open(segment, "wb") as fh:
             fh.write(blob[: len(blob) // 2])
-    with pytest.raises(_checkpoint.CheckpointError) as info:
+    with pytest.raises(L.CheckpointError) as info:  # public, and a LobattoDAEInputError
         L.solve(ex.problem, method, (0.0, 30.0), ex.q0, ex.p0, checkpoint=path, resume=True, **kw)
+    assert isinstance(info.value, L.LobattoDAEInputError)
     msg = str(info.value)
     assert msg.startswith(f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint (row segment '{segment}'")
     assert msg.endswith("; delete it or restart without resume.")

@@ -68,6 +68,19 @@ def test_python_dash_m_bad_argument_exit_code():
     assert "stages must be >= 2" in proc.stderr
 
 
+def test_output_into_a_closed_pipe_stops_quietly():
+    """`lobattodae ... | head -1`: the reader is gone; exit 141 (SIGPIPE) without a traceback."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # every write fails with EPIPE
+    try:
+        proc = subprocess.run([sys.executable, "-m", "lobattodae", "tableau", "5", "--check"], stdout=write_end,
+                              stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write_end)
+    assert proc.returncode == _cli.EXIT_BROKEN_PIPE == 141
+    assert "Traceback" not in proc.stderr and "BrokenPipeError" not in proc.stderr, proc.stderr
+
+
 def _cli_subprocess(argv, env_update):
     env = {k: v for k, v in os.environ.items() if k != "LOBATTODAE_NO_CACHE"}
     env.update(env_update)

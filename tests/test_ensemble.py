@@ -211,6 +211,13 @@ def test_adaptive_is_bit_for_bit_vmap(knife, method, batch):
         np.testing.assert_array_equal(getattr(result, field), np.asarray(getattr(ref, field)))
     np.testing.assert_array_equal(result.t, 1.0)
     assert np.all(result.status == L.Result.SUCCESSFUL) and np.all(result.n_steps > 10)
+    # new numbers (interval, tolerances, step bounds) reuse the compiled block
+    before = _ensemble._run_block._cache_size()
+    again = L.ensemble(knife.problem, method, q0, p0, lam0, knife.args, t_span=(0.5, 1.2), rtol=1e-4, atol=1e-6,
+                       first_step=0.01, max_step=0.2, max_steps=512)
+    assert _ensemble._run_block._cache_size() == before
+    np.testing.assert_array_equal(again.t, 1.2)
+    assert np.all(again.status == L.Result.SUCCESSFUL) and np.all(again.n_steps >= 4)  # max_step 0.2 over 0.7
 
 
 _SHARDED = """

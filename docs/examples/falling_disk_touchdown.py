@@ -65,8 +65,8 @@ def axle_height(t, q, p, args):
     return args.R * (jnp.cos(q[2]) - AXLE * jnp.sin(q[2]))
 
 
-#: The terminal event, created once: the compiled loop is cached per event object, so reusing
-#: it avoids recompiling on every call (see docs/variable-steps.md).
+#: The terminal event; an Event sets terminal and direction without attributes on the
+#: function (equal Events reuse the compiled loop, docs/variable-steps.md §4).
 TOUCHDOWN = L.Event(axle_height, terminal=1, direction=-1.0)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import signal
 import sys
@@ -33,6 +34,7 @@ LAM_START_HELP = (
 
 #: Exit code after Ctrl-C or SIGTERM outside the integration loop (128 + SIGINT, as shells do).
 EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE
 
 
 class _HelpFormatter(argparse.HelpFormatter):
@@ -174,7 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 success, 1 failure or a run stopped early,
-    2 usage error, 130 interrupted before or after the integration).
+    2 usage error, 130 interrupted before or after the integration, 141 output pipe closed).
 
     SIGTERM is handled as Ctrl-C: during an integration both stop it cleanly at the end of
     the current compiled chunk (checkpoint written, prefix reported, exit code 1); elsewhere
@@ -186,6 +188,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("lobattodae: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
+        except BrokenPipeError:
+            # the reader of our output went away (``lobattodae run ... | head``): stop quietly,
+            # with the shell's code for SIGPIPE, and keep Python's exit flush off the closed pipe
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return EXIT_BROKEN_PIPE
 
 
 def _main(argv: Sequence[str] | None) -> int:

@@ -270,7 +270,8 @@ class PIController(_TimeAndEnd):
         atol = options.atol * (rtol / options.rtol)
         auto = jax.lax.stop_gradient(initial_step(problem, t0, t1, q0, p0, lam0, args, rtol, atol, s - 1, options.max_step))
         direction = jnp.where(t1 >= t0, 1.0, -1.0)
-        h = jnp.where(options.first_step > 0, direction * jnp.minimum(options.first_step, jnp.abs(t1 - t0)), auto)
+        first = jnp.minimum(jnp.minimum(options.first_step, options.max_step), jnp.abs(t1 - t0))
+        h = jnp.where(options.first_step > 0, direction * first, auto)
         dtype = q0.dtype
         return AdaptiveState(
             t=t0, h=h.astype(dtype), t0=t0, t_end=t1, err_prev=jnp.asarray(1.0, dtype),
@@ -379,9 +380,10 @@ class ReversibleStepSize(_TimeAndEnd):
     through it (forward mode along ``(1, f, g)``), so that G is the exact derivative of σ
     along the DAE's flow and ρ keeps tracking σ over long runs.
 
-    There is no error test and no rejection. ``ε`` is fixed by the first step: ``first_step``
-    or, without it, the first step the :class:`PIController` would take for ``rtol``/``atol``
-    (``ε = h_0 σ(y_0)``); ``max_step`` caps ``ε/ρ`` (a function of ρ alone, so the map stays
+    There is no error test and no rejection. ``ε`` is fixed by the first step (``ε = h_0
+    σ(y_0)``): ``first_step`` (at most ``max_step``) or, without it, the automatic first step
+    for ``rtol``/``atol`` (the :class:`PIController`'s formula without its calibration
+    constant ``c_tol``); ``max_step`` caps ``ε/ρ`` (a function of ρ alone, so the map stays
     symmetric). Use it with the symmetric scheme, ``lam_start="previous"`` or ``"auto"``
     (error-controlled runs switch ``"auto"`` to the unsymmetric ``"consistent"``; this
     controller does not). The last step is shortened to end on ``t1``. A density that is not

@@ -450,9 +450,10 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
     **Reproducibility.** On one device the results are bit for bit those of ``jax.vmap`` of
     the entry point. On two or more devices XLA compiles a partitioned (SPMD) program, whose
     optimisation passes fuse and rewrite some floating-point expressions differently, so
-    results agree with ``jax.vmap`` to round-off (measured on the knife edge: ≤ 1e-15 in q and
-    p, ≤ 2e-13 in λ) and are bit for bit the same for every device count ≥ 2 and every block
-    size. Plain :func:`~lobattodae.integrate` and its ``vmap`` differ in the same way.
+    results agree with ``jax.vmap`` to round-off (measured on the knife edge: ≤ 2e-16 in q and
+    p, ≤ 1.2e-14 in λ; tested to 1e-12). Observed, not guaranteed: every device count ≥ 2 with
+    at least two trajectories per device gives the same bits (``docs/ensembles.md``). Plain
+    :func:`~lobattodae.integrate` and its ``vmap`` differ at round-off in the same way.
 
     **CPU devices.** Each CPU device's part runs on a thread of XLA's CPU thread pool (one
     thread per CPU, or ``$PJRT_NPROC``, or ``$NPROC``), and jaxlib's batched LU queues its

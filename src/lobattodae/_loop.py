@@ -735,7 +735,9 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
     scan of ``max_steps`` attempts (those after the end are skipped, but under ``vmap`` every
     lane computes all of them, so keep ``max_steps`` close to what the run needs), and
     ``checkpoints`` trades memory for recomputation as in :func:`integrate`. The derivatives
-    are those of the discrete adaptive map, step-size choices included.
+    are those of the discrete map along the step sequence the run chose: the step-size
+    choices are not differentiated (only the last step, clipped to end on ``t1``, moves with
+    ``t_span``; ``docs/gradients.md``).
 
     Returns
     -------

@@ -477,7 +477,7 @@ def solve(
         ``t_eval=[t1]`` keeps the final state only.
     dense_output : bool
         Keep every step's continuous extension: ``sol.sol(t) -> (q, p, lam)``.
-    events : callable or list of callables, optional
+    events : callable, Event, or list of them, optional
         ``e(t, q, p, args) -> float``; zeros are located on the dense output and returned in
         ``t_events``, ``q_events``, ... (one array per function). Attributes as in scipy:
         ``e.terminal`` (True, or stop at the k-th zero) and ``e.direction`` (> 0: rising
