@@ -1,7 +1,17 @@
-"""Assertions shared by several test modules."""
+"""Assertions and set-ups shared by several test modules."""
+
+import os
 
 import jax
 import numpy as np
+
+
+def subprocess_env(**extra):
+    """This process's environment for a child Python, without the variables that size XLA's
+    CPU pool (``PJRT_NPROC``, ``NPROC``; ``set_cpu_threads`` may have set one here), plus
+    ``extra``."""
+    base = {k: v for k, v in os.environ.items() if k not in ("PJRT_NPROC", "NPROC")}
+    return {**base, **extra}
 
 
 def assert_bitwise_equal(a, b):

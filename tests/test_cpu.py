@@ -10,6 +10,8 @@ import pytest
 import lobattodae as L
 from lobattodae import _cpu
 
+from helpers import subprocess_env
+
 POOL_THREADS = """
 import collections, os
 def pool_threads():
@@ -21,8 +23,7 @@ needs_proc = pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="co
 
 
 def _python(code, **env):
-    base = {k: v for k, v in os.environ.items() if k not in ("PJRT_NPROC", "NPROC")}
-    out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env={**base, **env},
+    out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=subprocess_env(**env),
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     return out.stdout.split()

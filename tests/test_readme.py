@@ -4,11 +4,12 @@ would hide a missing attribute such as ``L.examples``), and give the right answe
 
 import json
 import math
-import os
 import pathlib
 import re
 import subprocess
 import sys
+
+from helpers import subprocess_env
 
 README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
 
@@ -39,8 +40,7 @@ print("RESULT", json.dumps({
     "phi": float(sol.stats["max_constraint_residual"]),
 }))
 """
-    env = {k: v for k, v in os.environ.items() if k not in ("PJRT_NPROC", "NPROC")}
-    out = subprocess.run([sys.executable, "-c", blocks[0] + "\n" + blocks[1] + check], env=env,
+    out = subprocess.run([sys.executable, "-c", blocks[0] + "\n" + blocks[1] + check], env=subprocess_env(),
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     (line,) = [ln for ln in out.stdout.splitlines() if ln.startswith("RESULT ")]
@@ -58,8 +58,9 @@ print("RESULT", json.dumps({
 
 def test_subpackages_are_attributes_after_a_bare_import():
     code = ("import lobattodae as L; pair = L.lobatto_pair(3); "
-            "print(L.examples.chaplygin_sleigh().q0.shape, round(L.conditions.r_infinity(pair.a, pair.b), 12), 'examples' in dir(L))")
-    env = {k: v for k, v in os.environ.items() if k not in ("PJRT_NPROC", "NPROC")}
+            "print(L.examples.chaplygin_sleigh().q0.shape, round(L.conditions.r_infinity(pair.a, pair.b), 12), "
+            "'examples' in dir(L))")
+    env = subprocess_env()
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.split() == ["(3,)", "1.0", "True"]  # R(∞) = (−1)^(s−1)

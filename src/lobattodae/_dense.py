@@ -21,8 +21,8 @@ The multiplier is interpolated at the nodes,
 with order s (the slopes V_j use the IIIB stage momenta; p: s + 1 with a constant mass matrix
 when the stage multipliers are accurate to O(h^s), i.e. with the consistent start, which error
 control uses, or even s), λ with order s with the consistent start and otherwise at most its
-global order (s - 1 for odd s); measured in ``docs/variable-steps.md``; at the step points the values
-are the step's own (``θ = 1`` gives ``q_1, p_1, λ_1`` exactly in the solver, which stores
+global order (s - 1 for odd s); measured in ``docs/variable-steps.md``. At the step points the
+values are the step's own (``θ = 1`` gives ``q_1, p_1, λ_1`` exactly in the solver, which stores
 them rather than re-evaluating the polynomials).
 """
 

@@ -30,7 +30,8 @@ The regularised kinetic energy
 ------------------------------
 ``T_rot = ½ ω_bodyᵀ I ω_body = 2 Q̇ᵀ Eᵀ I E Q̇`` is degenerate: ``M = 4 Eᵀ I E`` has the null
 vector ``Q`` (``E Q = 0``), so a model built from it is (rightly) refused when it is first
-used (:meth:`~lobattodae.mechanics.LagrangianModel.check`, ``momenta``, ``solve``). This module uses instead
+used (:meth:`~lobattodae.mechanics.LagrangianModel.check`, ``momenta``, ``solve``). This
+module uses instead
 
 .. math::
 
