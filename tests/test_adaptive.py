@@ -41,29 +41,36 @@ def test_global_error_is_proportional_to_rtol(sleigh, method):
 
 
 @pytest.mark.parametrize("s", [4, 5])
-def test_calibrated_tolerance_constant_centres_the_error_on_rtol(s):
-    """The per-s c_tol (C_TOL) brings error/rtol near 1 where c_tol = 1 gave about 0.1 (s = 4)
-    and 0.01 (s = 5) on the knife edge (benchmarks/error_estimate.py); the error scales like
-    c_tol^((2s-2)/s)."""
+def test_embedded_estimate_keeps_its_calibrated_tolerance_constant(s):
+    """The opt-in embedded estimate: the per-s c_tol (C_TOL) brings error/rtol near 1 where
+    c_tol = 1 gave about 0.1 (s = 4) and 0.01 (s = 5) on the knife edge
+    (benchmarks/error_estimate.py); the error scales like c_tol^((2s-2)/s)."""
     ex = get_example("knife-edge")
     method = L.LobattoIIIAIIIB(stages=s)
     ratio = {}
     for c_tol in (None, 1.0):
         sol = L.solve(ex.problem, method, (0.0, 10.0), ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8,
-                      controller=L.PIController(c_tol=c_tol), save_every="final")
+                      controller=L.PIController(estimate="embedded", c_tol=c_tol), save_every="final")
         q, p, _ = ex.exact(10.0)
         ratio[c_tol] = max(np.abs(sol.q[-1] - q).max(), np.abs(sol.p[-1] - p).max()) / 1e-8
     assert 0.2 < ratio[None] < 5.0, ratio
     assert ratio[1.0] < 0.2 * ratio[None], ratio
-    assert L.PIController().tolerance_constant(s) == C_TOL[s] and L.PIController().tolerance_constant(9) == C_TOL[5]
+    embedded = L.PIController(estimate="embedded")
+    assert embedded.tolerance_constant(s) == C_TOL[s] and embedded.tolerance_constant(9) == C_TOL[5]
 
 
 @pytest.mark.parametrize("field, value", [("safety", 0.0), ("safety", 1.5), ("fac_min", 1.0), ("fac_max", 0.9),
                                           ("beta1", 0.0), ("beta2", -0.1), ("hysteresis", 0.5), ("c_tol", 0.0),
-                                          ("c_tol", float("nan")), ("fac_max", "5")])
+                                          ("c_tol", float("nan")), ("fac_max", "5"), ("estimate", "richardson")])
 def test_pi_controller_validates_its_fields(field, value):
     with pytest.raises(ValueError, match=f"PIController: {field} must be"):
-        L.PIController(**{field: value})
+        L.PIController(**{field: value, **({"estimate": "embedded"} if field == "c_tol" else {})})
+
+
+def test_c_tol_belongs_to_the_embedded_estimate():
+    """The default estimate uses the tolerances as given: a tolerance constant is refused."""
+    with pytest.raises(ValueError, match="c_tol maps the tolerances of the embedded estimate"):
+        L.PIController(c_tol=2.0)
 
 
 def test_adaptive_steps_need_fewer_steps_than_constant_ones_for_the_same_error(sleigh, method):

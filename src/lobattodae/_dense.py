@@ -36,28 +36,72 @@ import numpy as np
 
 from ._tableau import LobattoPair, lagrange_basis
 
-__all__ = ["DenseOutput", "DenseStep", "evaluate", "empty_dense_step", "integrated_basis"]
+__all__ = [
+    "DenseOutput", "DenseStep", "dense_size", "evaluate", "empty_dense_step", "integrated_basis", "joined",
+    "one_piece", "pack_dense", "span", "unpack_dense",
+]
 
 
 class DenseStep(NamedTuple):
-    """What dense output needs from one step (a pytree; the stage slopes and multipliers)."""
+    """What dense output needs from one step (a pytree; the stage slopes and multipliers).
 
-    t0: jax.Array
-    h: jax.Array
-    q0: jax.Array  # (n,)
-    p0: jax.Array  # (n,)
-    V: jax.Array  # (s, n)
-    W: jax.Array  # (s, n)
-    Lam: jax.Array  # (s, m)
+    A step is made of P pieces, each one step of the method with its own polynomials: P = 1
+    for a plain step, P = 2 for an error-controlled step (two half steps, see
+    :class:`~lobattodae._doubling.StepDoubling`). Every field has the piece axis first.
+    """
+
+    t0: jax.Array  # (P,)
+    h: jax.Array  # (P,)
+    q0: jax.Array  # (P, n)
+    p0: jax.Array  # (P, n)
+    V: jax.Array  # (P, s, n)
+    W: jax.Array  # (P, s, n)
+    Lam: jax.Array  # (P, s, m)
 
 
-def empty_dense_step(t0, q0, p0, lam0, s: int) -> DenseStep:
+def one_piece(t0, h, q0, p0, V, W, Lam) -> DenseStep:
+    """The dense output of one step of the method (P = 1)."""
+    return DenseStep(*(jnp.asarray(x)[None] for x in (t0, h, q0, p0, V, W, Lam)))
+
+
+def joined(*steps: DenseStep) -> DenseStep:
+    """Consecutive steps as the pieces of one."""
+    return DenseStep(*(jnp.concatenate(fields) for fields in zip(*steps)))
+
+
+def span(step: DenseStep):
+    """``(t_start, h_total)`` of a step made of pieces."""
+    return step.t0[..., 0], jnp.sum(step.h, axis=-1)
+
+
+def dense_size(pieces: int, s: int, n: int, m: int) -> int:
+    """The length of a packed :class:`DenseStep` (``_loop.pack_dense``)."""
+    return pieces * (2 + 2 * n + s * (2 * n + m))
+
+
+def pack_dense(step: DenseStep):
+    """One flat vector (a row of the dense-output buffer)."""
+    return jnp.concatenate([jnp.atleast_1d(x).ravel() for x in step])
+
+
+def unpack_dense(rows, pieces: int, s: int, n: int, m: int) -> DenseStep:
+    """``(k, D)`` packed rows -> a :class:`DenseStep` of stacked arrays (NumPy or JAX)."""
+    shapes = [(pieces,), (pieces,), (pieces, n), (pieces, n), (pieces, s, n), (pieces, s, n), (pieces, s, m)]
+    out, i = [], 0
+    for shape in shapes:
+        size = int(np.prod(shape))
+        out.append(rows[:, i : i + size].reshape((rows.shape[0],) + shape))
+        i += size
+    return DenseStep(*out)
+
+
+def empty_dense_step(t0, q0, p0, lam0, s: int, pieces: int = 1) -> DenseStep:
     """A zero-length "step" at ``(t0, q0, p0, λ0)``: evaluates to those values at ``t0``."""
     n, m = q0.shape[-1], lam0.shape[-1]
-    zeros = jnp.zeros((s, n), q0.dtype)
+    zeros = jnp.zeros((pieces, s, n), q0.dtype)
     return DenseStep(
-        jnp.asarray(t0, q0.dtype), jnp.zeros((), q0.dtype), q0, p0, zeros, zeros,
-        jnp.broadcast_to(lam0, (s, m)),
+        jnp.full((pieces,), t0, q0.dtype), jnp.zeros((pieces,), q0.dtype), jnp.broadcast_to(q0, (pieces, n)),
+        jnp.broadcast_to(p0, (pieces, n)), zeros, zeros, jnp.broadcast_to(lam0, (pieces, s, m)),
     )
 
 
@@ -72,9 +116,13 @@ def integrated_basis(c: np.ndarray, theta):
 def evaluate(pair: LobattoPair, step: DenseStep, t):
     """``(q(t), p(t), λ(t))`` from the polynomials (q), (p), (λ) of ``step`` at a scalar t.
 
-    A zero-length step (no step taken yet) evaluates to its start values.
+    A zero-length step (no step taken yet) evaluates to its start values. A step of several
+    pieces evaluates the piece that contains t.
     """
     t = jnp.asarray(t, step.q0.dtype)
+    later = (jnp.sign(step.h[1:]) * (t - step.t0[1:]) > 0).astype(jnp.int32)  # pieces that start before t
+    j = jnp.sum(later)
+    step = jax.tree_util.tree_map(lambda x: x[j], step)
     safe_h = jnp.where(step.h == 0, 1.0, step.h)
     theta = jnp.where(step.h == 0, 0.0, (t - step.t0) / safe_h)
     k = integrated_basis(pair.c, theta)
@@ -99,15 +147,13 @@ class DenseOutput:
     integrated interval.
     """
 
-    def __init__(self, pair: LobattoPair, packed: np.ndarray, n: int, m: int, t0: float):
-        from ._loop import unpack_dense
-
+    def __init__(self, pair: LobattoPair, packed: np.ndarray, pieces: int, n: int, m: int, t0: float):
         self.pair = pair
-        self.steps = unpack_dense(np.asarray(packed), pair.s, n, m)
+        self.steps = unpack_dense(np.asarray(packed), pieces, pair.s, n, m)
         self.n_steps = len(self.steps.t0)
         self.t0 = float(t0)
-        self.t1 = float(self.steps.t0[-1] + self.steps.h[-1]) if self.n_steps else self.t0
-        self._starts = np.asarray(self.steps.t0)
+        self.t1 = float(self.steps.t0[-1, 0] + np.sum(self.steps.h[-1])) if self.n_steps else self.t0
+        self._starts = np.asarray(self.steps.t0[:, 0])
 
     def __call__(self, t):
         t_arr = np.asarray(t, dtype=np.float64)

@@ -19,7 +19,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._dense import DenseStep, evaluate
+from ._dense import DenseStep, evaluate, span
 from ._errors import LobattoDAEInputError
 from ._tableau import LobattoPair
 
@@ -111,8 +111,10 @@ def locate(pair: LobattoPair, event: Event, step: DenseStep, args, v0, v1):
     """The time of the zero of ``event`` in the step, between values ``v0`` (θ = 0) and ``v1``
     (θ = 1) of opposite signs, on the dense output."""
 
+    start, length = span(step)
+
     def value(theta):
-        t = step.t0 + theta * step.h
+        t = start + theta * length
         q, p, _ = evaluate(pair, step, t)
         return jnp.asarray(event.fn(t, q, p, args), v0.dtype).reshape(())
 
@@ -137,4 +139,4 @@ def locate(pair: LobattoPair, event: Event, step: DenseStep, args, v0, v1):
     zero, one = jnp.asarray(0.0, v0.dtype), jnp.asarray(1.0, v0.dtype)
     a, b, fa, fb, _, _ = jax.lax.while_loop(cond, body, (zero, one, v0, v1, jnp.asarray(0), jnp.asarray(0)))
     theta = jnp.where(fa == 0, a, jnp.where(fb == 0, b, jnp.where(jnp.abs(fa) <= jnp.abs(fb), a, b)))
-    return step.t0 + theta * step.h
+    return start + theta * length

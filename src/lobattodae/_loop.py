@@ -29,12 +29,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._controllers import ConstantStepSize, ControlOptions, PIController, StepReport
-from ._dense import DenseStep, empty_dense_step, evaluate
+from ._dense import DenseStep, dense_size, empty_dense_step, evaluate, pack_dense, unpack_dense
 from ._errors import LobattoDAEInputError
 from ._events import Event, EventState, crossings, event_values, locate
 from ._packing import StatePacking
 from ._results import Result
-from ._stepper import LobattoIIIAIIIB, StepperState, for_error_control
+from ._doubling import for_error_control
+from ._stepper import LobattoIIIAIIIB, StepperState
 
 __all__ = [
     "CHUNK",
@@ -50,6 +51,11 @@ __all__ = [
     "run",
 ]
 
+#: A terminal event's zero is refined (the step taken again onto ``t - v/v'``) until the
+#: Newton update in time is below this fraction of ``max(|t|, |h|)``, at most
+#: MAX_EVENT_REFINEMENTS times: the final state lies on the zero to the accuracy of a step point.
+EVENT_TIME_RTOL = 1e-13
+MAX_EVENT_REFINEMENTS = 4
 #: Step attempts per compiled chunk in :func:`~lobattodae.solve` (a fixed length: a new number
 #: of steps never recompiles; a short run stops early and leaves the rest of the buffers unused).
 CHUNK = 2048
@@ -99,6 +105,7 @@ class State(NamedTuple):
     last: DenseStep
     events: EventState
     k_eval: jax.Array  # int32, the next t_eval row
+    event_refinements: jax.Array  # int32, re-steps onto a terminal zero after the first
     # outcome and counters
     result: jax.Array  # int32 Result: SUCCESSFUL while running, else the first failure's code
     n_accepted: jax.Array  # int32
@@ -121,12 +128,13 @@ def init_state(problem, method: LobattoIIIAIIIB, controller, output: Output, t0,
         q=q0, p=p0, lam=lam0,
         stepper=method.init(problem, t0, q0, p0, lam0, args, h),
         controller=ctrl,
-        last=empty_dense_step(t0, q0, p0, lam0, method.stages),
+        last=empty_dense_step(t0, q0, p0, lam0, method.stages, method.pieces),
         events=EventState(
             event_values(output.events, t0, q0, p0, args, dtype),
             jnp.zeros((n_events,), jnp.int32), jnp.asarray(-1, jnp.int32),
         ),
         k_eval=zero,
+        event_refinements=zero,
         result=jnp.asarray(Result.SUCCESSFUL, jnp.int32),
         n_accepted=zero, n_rejected=zero, n_newton=zero, n_jacobians=zero,
         max_constraint=jnp.max(jnp.abs(problem.phi(t0, q0, p0, args)), initial=0.0),
@@ -155,21 +163,6 @@ def _unpack_rows(floats, ints, n: int, m: int) -> Record:
     for j, f in enumerate(_INT_FIELDS):
         out[f] = ints[:, j].astype(bool) if f == "resync" else ints[:, j]
     return Record(**out)
-
-
-def pack_dense(step: DenseStep):
-    return jnp.concatenate([jnp.atleast_1d(x).ravel() for x in step])
-
-
-def unpack_dense(rows, s: int, n: int, m: int) -> DenseStep:
-    """``(k, D)`` packed rows -> a :class:`DenseStep` of stacked arrays (NumPy or JAX)."""
-    sizes = [1, 1, n, n, s * n, s * n, s * m]
-    shapes = [(), (), (n,), (n,), (s, n), (s, n), (s, m)]
-    out, i = [], 0
-    for size, shape in zip(sizes, shapes):
-        out.append(rows[:, i : i + size].reshape((rows.shape[0],) + shape))
-        i += size
-    return DenseStep(*out)
 
 
 class Chunk(NamedTuple):
@@ -234,8 +227,8 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
     )
     accept, ctrl, result = controller.adapt(st.controller, problem, args, report)
     t1 = jnp.where(accept, controller.time(ctrl), t + h)
-    ev_state, found, times, stop, t_stop = _events(events, pair, direction, st, info.dense, t1, q1, p1, accept, args,
-                                                   dtype)
+    ev_state, found, times, stop, t_stop, again = _events(events, pair, direction, st, info.dense, t1, q1, p1, accept,
+                                                          args, dtype)
     ctrl = jax.tree_util.tree_map(lambda a, b: jnp.where(stop, a, b), controller.stop_at(st.controller, t_stop), ctrl)
     kept = accept & ~stop
     finished = kept & controller.done(ctrl)
@@ -255,6 +248,7 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
             counts=ev_state.counts + (final_event & (jnp.arange(n_ev) == st.events.stopping)).astype(jnp.int32)
         ),
         k_eval=st.k_eval,
+        event_refinements=st.event_refinements + again.astype(jnp.int32),
         result=result,
         n_accepted=st.n_accepted + kept.astype(jnp.int32),
         n_rejected=st.n_rejected + (~accept).astype(jnp.int32),
@@ -271,7 +265,7 @@ def _events(events, pair, direction, st: State, step: DenseStep, t1, q1, p1, acc
     and whether a terminal one stops the run inside it (at ``t_stop``)."""
     n_ev = len(events)
     if not n_ev:
-        return st.events, jnp.zeros((0,), bool), jnp.zeros((0,), dtype), jnp.asarray(False), t1
+        return st.events, jnp.zeros((0,), bool), jnp.zeros((0,), dtype), jnp.asarray(False), t1, jnp.asarray(False)
     v0 = st.events.values
     v1 = event_values(events, t1, q1, p1, args, dtype)
     stopping = st.events.stopping >= 0
@@ -285,14 +279,39 @@ def _events(events, pair, direction, st: State, step: DenseStep, t1, q1, p1, acc
     terminal = jnp.asarray([ev.terminal for ev in events], jnp.int32)
     is_stop = found & (terminal > 0) & (st.events.counts + 1 >= terminal) & ~stopping
     j_stop = jnp.argmin(jnp.where(is_stop, direction * times, jnp.inf)).astype(jnp.int32)
-    stop = jnp.any(is_stop)
+    # the re-step onto a terminal zero located on the dense output ends where the event is not yet
+    # zero to the step points' accuracy: one Newton step in time, and the step is taken again
+    j_now = jnp.maximum(st.events.stopping, 0)
+    t_newton = jax.lax.cond(stopping & accept, lambda: _newton_time(events, pair, step, args, j_now, v1[j_now], t1),
+                            lambda: t1)
+    t_prev = t1 - jnp.sum(step.h)
+    t_newton = jnp.clip(t_newton, jnp.minimum(t_prev, 2 * t1 - t_prev), jnp.maximum(t_prev, 2 * t1 - t_prev))
+    off = jnp.abs(t_newton - t1) > EVENT_TIME_RTOL * jnp.maximum(jnp.abs(t1), jnp.abs(t1 - t_prev))
+    again = stopping & accept & off & (t_newton != t_prev) & (st.event_refinements < MAX_EVENT_REFINEMENTS)
+    stop = jnp.any(is_stop) | again
     kept = accept & ~stop
     new = EventState(
         jnp.where(kept, v1, v0),
         st.events.counts + (found & kept).astype(jnp.int32),
-        jnp.where(stop, j_stop, st.events.stopping),
+        jnp.where(stop & ~again, j_stop, st.events.stopping),
     )
-    return new, found & kept, times, stop, times[j_stop]
+    return new, found & kept, times, stop, jnp.where(again, t_newton, times[j_stop]), again
+
+
+def _newton_time(events, pair, step: DenseStep, args, j, value, t1):
+    """``t1 - v(t1) / v'(t1)`` for event j, whose value at the step's end ``t1`` is ``value``; the
+    slope from the step's dense output (accurate near its end, where the zero is)."""
+
+    def slope(k):
+        def v(t):
+            q, p, _ = evaluate(pair, step, t)
+            return jnp.asarray(events[k].fn(t, q, p, args), value.dtype).reshape(())
+
+        return jax.jvp(v, (t1,), (jnp.ones_like(t1),))[1]
+
+    dv = jax.lax.switch(j, [functools.partial(slope, k) for k in range(len(events))])
+    usable = jnp.isfinite(dv) & (dv != 0) & jnp.isfinite(value)
+    return jnp.where(usable, t1 - value / jnp.where(usable, dv, 1.0), t1)
 
 
 def _step_record(a: Attempt) -> Record:
@@ -398,7 +417,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
     rows = (jnp.full((capacity, 2 * n + m + 4), jnp.nan, dtype), jnp.zeros((capacity, 3), jnp.int32))
     zero = jnp.asarray(0, jnp.int32)
     state, rows, n_rows = flush(state, rows, zero, state.last)
-    d_size = 2 + 2 * n + method.stages * (2 * n + m)
+    d_size = dense_size(method.pieces, method.stages, n, m)
     dense = jnp.full((length, d_size), jnp.nan, dtype) if output.dense else None
     ev_rows = jnp.full((length, 1 + 2 * n + m), jnp.nan, dtype) if n_ev else None
     ev_idx = jnp.zeros((length,), jnp.int32) if n_ev else None
@@ -436,7 +455,7 @@ def scan_run(problem, method: LobattoIIIAIIIB, controller, state: State, args, l
     """
     dtype = state.q.dtype
     n, m = state.q.shape[-1], state.lam.shape[-1]
-    d_size = 2 + 2 * n + method.stages * (2 * n + m)
+    d_size = dense_size(method.pieces, method.stages, n, m)
     nan = functools.partial(jnp.full, fill_value=jnp.nan, dtype=dtype)
 
     def go(st):
@@ -701,7 +720,7 @@ def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t
         rows = [_with_initial(x0, front(x)) for x0, x in ((t0, steps.t), (q0, steps.q), (p0, steps.p), (lam0, steps.lam))]
         return AdaptiveResult(*rows, n_rows + 1, state.n_accepted, state.n_rejected, status)
     n, m = q0.shape[-1], lam0.shape[-1]
-    dense = unpack_dense(front(steps.dense), method.stages, n, m)
+    dense = unpack_dense(front(steps.dense), method.pieces, method.stages, n, m)
     ends = front(steps.t)
     direction = jnp.sign(ends[0] - t0)
     # the step containing t: the first accepted one that ends at or after it
@@ -750,8 +769,7 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
     checkpoints = resolve_checkpoints(checkpoints, max_steps)
     if not isinstance(differentiable, bool):
         raise LobattoDAEInputError(f"differentiable must be True or False; got {differentiable!r}.")
-    if isinstance(controller, PIController):
-        method = for_error_control(method)
+    method = for_error_control(method, controller)
     cast = functools.partial(jnp.asarray, dtype=jnp.float64)
     t0, t1 = (cast(x) for x in t_span)
     options = ControlOptions(1, rtol, atol, first_step, max_step)

@@ -26,11 +26,12 @@ import numpy as np
 from . import _checkpoint
 from ._errors import LobattoDAEInputError, NewtonFailure
 from ._controllers import ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
-from ._dense import DenseOutput
+from ._dense import DenseOutput, dense_size
 from ._events import as_events
 from ._loop import CHUNK, Output, Record, State, init_host, run_host, start_host
 from ._results import Result
-from ._stepper import LobattoIIIAIIIB, for_error_control
+from ._doubling import for_error_control
+from ._stepper import LobattoIIIAIIIB
 from ._validate import check_float64, check_tolerance_attainable, validate_and_residual
 
 __all__ = ["Solution", "solve", "STATS"]
@@ -45,7 +46,8 @@ STATS = {
     "lam_resync": "(rows,) bool: that step started from λ(t_k, q_k, p_k) (lam_start='auto' re-synchronised λ)",
     "lam_resets": "number of re-synchronisations of λ in the output rows (lam_start='auto')",
     "lam_excursions": "steps where the drift left its normal band (re-synchronised with 'auto', only counted otherwise)",
-    "max_constraint_residual": "max ‖φ‖∞ over every step point (saved or not)",
+    "max_constraint_residual": "max ‖φ‖∞ over every step point (saved or not) and every row returned (t_eval rows "
+                               "lie between step points)",
     "max_multiplier_drift": "max ‖λ − λ(t, q, p)‖∞ over every step point",
     "n_jacobians": "Newton Jacobian evaluations (each with one factorisation)",
     "n_newton": "Newton iterations in all",
@@ -397,11 +399,11 @@ class _Progress(NamedTuple):
     @classmethod
     def start(cls, state: State, opt: _Options, recoveries: int = 0) -> _Progress:
         """No rows yet (their shapes from ``state``)."""
-        n, m, s = state.q.shape[-1], state.lam.shape[-1], state.last.V.shape[0]
+        n, m, (pieces, s) = state.q.shape[-1], state.lam.shape[-1], state.last.V.shape[:2]
         f, i = np.float64, np.int32
         rows = (np.zeros(0, f), np.zeros((0, n), f), np.zeros((0, n), f), np.zeros((0, m), f), np.zeros(0, i),
                 np.zeros(0, i), np.zeros(0, f), np.zeros(0, f), np.zeros(0, f), np.zeros(0, bool))
-        dense = _Rows((np.zeros((0, 2 + 2 * n + s * (2 * n + m)), f),)) if opt.output.dense else None
+        dense = _Rows((np.zeros((0, dense_size(pieces, s, n, m)), f),)) if opt.output.dense else None
         events = _Rows((np.zeros((0, 1 + 2 * n + m), f), np.zeros(0, i))) if opt.output.events else None
         return cls(state, _Rows(rows), dense, events, recoveries)
 
@@ -576,8 +578,7 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
     """Validation, the loop state, the compiled chunks (progress, checkpoints, recovery), the
     Solution; ``interrupted()`` says whether Ctrl-C asked to stop."""
     q0, p0, lam0, phi0 = validate_and_residual(problem, opt.t0, q0, p0, lam0, args, project=project_initial)
-    if isinstance(opt.controller, PIController):
-        method = for_error_control(method)
+    method = for_error_control(method, opt.controller)
     _check_events(opt.output.events, opt.t0, q0, p0, args)
     report = _progress_reporter(progress, opt)
     controller, output = opt.controller, opt.output
@@ -893,7 +894,7 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
         "lam_resync": out.resync,
         "lam_resets": int(np.count_nonzero(out.resync)),
         "lam_excursions": excursions,
-        "max_constraint_residual": float(state.max_constraint),
+        "max_constraint_residual": max(float(state.max_constraint), float(np.max(out.constraint, initial=0.0))),
         "max_multiplier_drift": float(state.max_drift),
         "n_jacobians": int(state.n_jacobians),
         "n_newton": int(state.n_newton),
@@ -909,7 +910,7 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
     sol = None
     if opt.output.dense:
         (dense,) = run.dense.all()
-        sol = DenseOutput(method.pair, dense, q0.shape[-1], lam0.shape[-1], opt.t0)
+        sol = DenseOutput(method.pair, dense, method.pieces, q0.shape[-1], lam0.shape[-1], opt.t0)
     success = status.success and failed_step is None
     message = status.message
     if failed_step is not None:

@@ -21,7 +21,7 @@ from ._problem import consistent_lambda
 from ._projection import project_step_end
 from ._results import Result
 from ._tableau import LobattoPair, lobatto_pair
-from ._dense import DenseStep
+from ._dense import DenseStep, one_piece
 
 __all__ = ["LobattoIIIAIIIB", "StepInfo", "StepperState", "LAM_START_MODES"]
 
@@ -173,6 +173,9 @@ class LobattoIIIAIIIB:
             raise ValueError(f"extrapolate must be True or False; got {self.extrapolate!r}.")
 
     # -- tableau and theory ---------------------------------------------------------------
+    #: Pieces of a step's dense output (:class:`~lobattodae._dense.DenseStep`): one step, one piece.
+    pieces = 1
+
     @property
     def pair(self) -> LobattoPair:
         """The Lobatto IIIA-IIIB coefficients ``(s, c, b, a, a_hat)``."""
@@ -305,7 +308,7 @@ class LobattoIIIAIIIB:
             monitor=monitor,
         )
         error = self._error_estimate(params, stages)
-        dense = DenseStep(t0, h, q0, p0, stages.V, stages.W, stages.Lam)
+        dense = one_piece(t0, h, q0, p0, stages.V, stages.W, stages.Lam)
         info = StepInfo(
             ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians, drift, state.resync, error, dense
         )
@@ -369,15 +372,6 @@ class LobattoIIIAIIIB:
             length=jnp.where(ends, 2 * monitor.length, monitor.length),
             excursions=monitor.excursions + excursion.astype(jnp.int32),
         ), excursion
-
-
-def for_error_control(method: LobattoIIIAIIIB) -> LobattoIIIAIIIB:
-    """The method as error-controlled steps run it: ``lam_start="auto"`` becomes
-    ``"consistent"`` (see :meth:`LobattoIIIAIIIB.step`, the error estimate); an explicit
-    ``"previous"`` is kept (the estimate then also measures the carried λ error)."""
-    if method.lam_start == "auto":
-        return dataclasses.replace(method, lam_start="consistent")
-    return method
 
 
 def _fresh_monitor(dtype, excursions) -> LamMonitor:
