@@ -134,21 +134,25 @@ def test_dense_output_order_between_step_points(sleigh):
         sol.sol(3.0)
 
 
-def test_terminal_event_on_the_sleigh_heading_matches_the_closed_form(sleigh, method):
+@pytest.mark.parametrize("s, bound", [(3, 1e-9), (4, 1e-10)])
+def test_terminal_event_on_the_sleigh_heading_matches_the_closed_form(sleigh, s, bound):
+    """The zero located on the dense output is refined by re-stepping onto it (Newton in time),
+    so the event time is as accurate as a step point (measured at rtol 1e-10: s = 3 2.5e-11,
+    s = 4 4.5e-14; located on the dense output alone, as before: 6.2e-9 and 3.8e-9)."""
     target = 0.5
 
     def heading(t, q, p, args):
         return q[2] - target
 
     heading.terminal = True
-    sol = _solve(sleigh, method, rtol=1e-10, atol=1e-10, events=heading)
+    sol = _solve(sleigh, L.LobattoIIIAIIIB(stages=s), rtol=1e-10, atol=1e-10, events=heading)
     assert sol.status == L.Result.EVENT and sol.success
     t_exact = brentq(lambda t: sleigh.exact(t)[0][2] - target, 0.01, 2.0, xtol=1e-15)
-    assert abs(sol.t_events[0][0] - t_exact) < 1e-9
+    assert abs(sol.t_events[0][0] - t_exact) < bound
     assert sol.t[-1] == sol.t_events[0][0]
     # the final state is a step point of the method: the constraint at round-off
-    assert sol.stats["constraint_residual"][-1] < 1e-14
-    assert abs(sol.q[-1, 2] - target) < 1e-9
+    assert sol.stats["constraint_residual"][-1] <= 1e-15
+    assert abs(sol.q[-1, 2] - target) < bound
 
 
 def test_solving_again_with_the_same_event_function_does_not_recompile(sleigh, method):

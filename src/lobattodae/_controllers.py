@@ -417,8 +417,9 @@ class ReversibleStepSize(_TimeAndEnd):
 
     There is no error test and no rejection. ``ε`` is fixed by the first step (``ε = h_0
     σ(y_0)``): ``first_step`` (at most ``max_step``) or, without it, the automatic first step
-    for ``rtol``/``atol`` (the :class:`PIController`'s formula without its calibration
-    constant ``c_tol``); ``max_step`` caps ``ε/ρ`` (a function of ρ alone, so the map stays
+    for ``rtol``/``atol`` as given (the :class:`PIController`'s first-step formula for a local
+    error of order 2s - 1; a heuristic, not an error test: check the accuracy by halving
+    ``first_step``); ``max_step`` caps ``ε/ρ`` (a function of ρ alone, so the map stays
     symmetric). Use it with the symmetric scheme, ``lam_start="previous"`` or ``"auto"``
     (error-controlled runs switch ``"auto"`` to the unsymmetric ``"consistent"``; this
     controller does not). The last step is shortened to end on ``t1``. A density that is not

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._controllers import ConstantStepSize, ControlOptions, PIController, StepReport
+from ._controllers import END_STRETCH, ConstantStepSize, ControlOptions, PIController, StepReport
 from ._dense import DenseStep, dense_size, empty_dense_step, evaluate, pack_dense, unpack_dense
 from ._errors import LobattoDAEInputError
 from ._events import Event, EventState, crossings, event_values, locate
@@ -66,13 +66,15 @@ class Output:
     """What the loop records (static: it shapes the buffers).
 
     ``t_eval``: rows at given times (the times themselves are traced, see :func:`run`)
-    instead of step points; ``dense``: each accepted step's dense-output data; ``events``:
+    instead of step points, taken from the dense output or, with ``step_to_t_eval``, at step
+    points that the steps are shortened to land on (:func:`clip_to_outputs`); ``dense``: each accepted step's dense-output data; ``events``:
     the event functions whose zeros are recorded.
     """
 
     t_eval: bool = False
     dense: bool = False
     events: tuple[Event, ...] = ()
+    step_to_t_eval: bool = False  # error-controlled steps end on the t_eval times (T_EVAL_ROWS)
 
 
 class Record(NamedTuple):
@@ -206,11 +208,51 @@ class Attempt(NamedTuple):
     times: jax.Array  # (n_events,) their times
 
 
-def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: State, args) -> tuple[State, Attempt]:
+def clip_to_outputs(t, h, t_eval):
+    """``h``, shortened so that the step ends on the first output time after t, if it passes
+    one (``t_eval`` sorted in the direction of integration, NaN-padded): the output row is
+    then a step point, as accurate as the steps."""
+    direction = jnp.sign(h)
+    keys = jnp.where(jnp.isnan(t_eval), jnp.inf, direction * t_eval)
+    k = jnp.minimum(jnp.searchsorted(keys, direction * t, side="right"), t_eval.shape[0] - 1)
+    rest = t_eval[k] - t
+    # as at the end of the interval, a step that would stop just short of the time is stretched to it
+    reaches = jnp.isfinite(keys[k]) & (direction * rest > 0) & (jnp.abs(rest) <= (1.0 + END_STRETCH) * jnp.abs(h))
+    return jnp.where(reaches, rest, h)
+
+
+#: How ``t_eval`` rows are made: ``"step"``, error-controlled steps end on the requested times
+#: (rows as accurate as step points, at the cost of the extra steps); ``"interpolate"``, rows
+#: from the dense output (order s between step points, no extra steps).
+T_EVAL_ROWS = ("step", "interpolate")
+
+
+def steps_to_t_eval(t_eval_rows, controller, has_t_eval: bool) -> bool:
+    """Whether the steps end on the ``t_eval`` times: the one place that decides it. Default
+    (None): yes under error control, no for constant steps (they keep their grid) and the
+    reversible control (it would lose its symmetry)."""
+    if t_eval_rows is None:
+        return has_t_eval and isinstance(controller, PIController)
+    if t_eval_rows not in T_EVAL_ROWS:
+        raise LobattoDAEInputError(
+            "t_eval_rows must be 'step' (error-controlled steps end on the t_eval times) or 'interpolate' "
+            f"(rows from the dense output); got {t_eval_rows!r}."
+        )
+    if t_eval_rows == "step" and not isinstance(controller, PIController):
+        raise LobattoDAEInputError(
+            "t_eval_rows='step' needs error-controlled steps (rtol/atol with a PIController): constant steps keep "
+            "their grid and ReversibleStepSize its symmetry; use t_eval_rows='interpolate'."
+        )
+    return has_t_eval and t_eval_rows == "step"
+
+
+def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: State, args,
+            t_eval=None) -> tuple[State, Attempt]:
     """Steps 1-3 of the loop body: step, controller (and terminal events), result.
 
     Returns the state after the attempt (the step point moves only when the step is kept)
-    and what the recording step needs.
+    and what the recording step needs. With ``output.step_to_t_eval`` the proposed step ends
+    on the next time of ``t_eval`` it would pass.
     """
     dtype = st.q.dtype
     events = output.events
@@ -218,6 +260,8 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
     pair = method.pair
     # 1. step
     t, h = controller.proposal(st.controller)
+    if output.step_to_t_eval:
+        h = clip_to_outputs(t, h, t_eval)
     direction = jnp.sign(h)
     q1, p1, lam1, info, stepper = method.step(problem, t, st.q, st.p, st.lam, h, args, st.stepper)
     ok = info.result == Result.SUCCESSFUL
@@ -382,7 +426,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         st, buf, attempts = carry
         rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
         # 1.-3. step, controller, result
-        new, a = attempt(problem, method, controller, output, st, args)
+        new, a = attempt(problem, method, controller, output, st, args, t_eval)
         # 4. record
         if output.t_eval:
             new, rows, n_rows = flush(new, rows, n_rows, new.last, a.info)
@@ -439,7 +483,7 @@ class Steps(NamedTuple):
 
 
 def scan_run(problem, method: LobattoIIIAIIIB, controller, state: State, args, length: int,
-             checkpoints: int | None = None, dense: bool = False) -> tuple[State, Steps]:
+             checkpoints: int | None = None, dense: bool = False, t_eval=None) -> tuple[State, Steps]:
     """The loop body of :func:`run` (steps 1-3, :func:`attempt`) as a ``lax.scan`` of exactly
     ``length`` attempts, recording each attempt's step point as a scan output.
 
@@ -459,7 +503,7 @@ def scan_run(problem, method: LobattoIIIAIIIB, controller, state: State, args, l
     nan = functools.partial(jnp.full, fill_value=jnp.nan, dtype=dtype)
 
     def go(st):
-        new, a = attempt(problem, method, controller, Output(), st, args)
+        new, a = attempt(problem, method, controller, Output(step_to_t_eval=t_eval is not None), st, args, t_eval)
         row = Steps(a.t1, a.q1, a.p1, a.lam1, a.kept, pack_dense(a.info.dense) if dense else None)
         masked = jax.tree_util.tree_map(lambda x: jnp.where(a.kept, x, jnp.nan), row._replace(kept=None))
         return new, masked._replace(kept=a.kept)
@@ -681,12 +725,13 @@ class AdaptiveResult(NamedTuple):
     status: jax.Array  # int32 Result code (MAX_STEPS when max_steps ran out first)
 
 
-def _integrate_adaptive(problem, method, controller, max_steps, differentiable, checkpoints, t0, t1, q0, p0, lam0,
-                        args, options, t_eval):
-    output = Output(t_eval=t_eval is not None)
+def _integrate_adaptive(problem, method, controller, max_steps, differentiable, checkpoints, step_to, t0, t1, q0, p0,
+                        lam0, args, options, t_eval):
+    output = Output(t_eval=t_eval is not None, step_to_t_eval=step_to)
     state = init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
     if differentiable:
-        return _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval)
+        return _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval,
+                              step_to)
     length = max_steps if t_eval is None else t_eval.shape[0]
     state, chunk = run(problem, method, controller, output, state, args, length, 1, t_eval, max_attempts=max_steps)
     rec = _unpack_rows(*chunk.rows, q0.shape[-1], lam0.shape[-1])
@@ -700,14 +745,16 @@ def _integrate_adaptive(problem, method, controller, max_steps, differentiable, 
     return AdaptiveResult(rec.t, rec.q, rec.p, rec.lam, chunk.n_rows, state.n_accepted, state.n_rejected, status)
 
 
-def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval):
+def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval,
+                   step_to):
     """:func:`integrate_adaptive` through :func:`scan_run` (reverse-mode differentiable).
 
     The accepted steps are moved to the front of the output (a scatter, which differentiates
     like a gather); ``t_eval`` rows are read from the accepted steps' dense output after the
     loop, each from the step that contains its time.
     """
-    state, steps = scan_run(problem, method, controller, state, args, max_steps, checkpoints, dense=t_eval is not None)
+    state, steps = scan_run(problem, method, controller, state, args, max_steps, checkpoints, dense=t_eval is not None,
+                            t_eval=t_eval if step_to else None)
     n_rows = jnp.sum(steps.kept.astype(jnp.int32))
     at = jnp.where(steps.kept, jnp.cumsum(steps.kept) - 1, max_steps)
 
@@ -734,13 +781,13 @@ def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t
                           jnp.sum(inside.astype(jnp.int32)), state.n_accepted, state.n_rejected, status)
 
 
-_integrate_adaptive_compiled = jax.jit(_integrate_adaptive, static_argnums=(0, 1, 2, 3, 4, 5))
+_integrate_adaptive_compiled = jax.jit(_integrate_adaptive, static_argnums=(0, 1, 2, 3, 4, 5, 6))
 
 
 def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, args=None, *, rtol=1e-8, atol=1e-10,
                        first_step=0.0, max_step=jnp.inf, max_steps: int = 4096, t_eval=None,
                        controller=PIController(), differentiable: bool = False,
-                       checkpoints: int | str | None = "auto") -> AdaptiveResult:
+                       checkpoints: int | str | None = "auto", t_eval_rows: str | None = None) -> AdaptiveResult:
     """Pure, jit/vmap-able integration with error-controlled (or reversible) step sizes.
 
     The same loop and controllers as :func:`~lobattodae.solve` without the input checks, for
@@ -764,17 +811,20 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
         ``(t, q, p, lam, n_rows, n_steps, n_rejected, status)``: without ``t_eval`` the step
         points (row 0 is the initial value; ``max_steps + 1`` rows, those past ``n_rows`` NaN),
         with ``t_eval`` (an array, sorted in the direction of integration) one row per time.
+        ``t_eval_rows`` as in :func:`~lobattodae.solve` (default: error-controlled steps end
+        on the ``t_eval`` times).
     """
     _check_count("max_steps", max_steps)
     checkpoints = resolve_checkpoints(checkpoints, max_steps)
     if not isinstance(differentiable, bool):
         raise LobattoDAEInputError(f"differentiable must be True or False; got {differentiable!r}.")
+    step_to = steps_to_t_eval(t_eval_rows, controller, t_eval is not None)
     method = for_error_control(method, controller)
     cast = functools.partial(jnp.asarray, dtype=jnp.float64)
     t0, t1 = (cast(x) for x in t_span)
     options = ControlOptions(1, rtol, atol, first_step, max_step)
     t_eval = None if t_eval is None else cast(t_eval)
     return _integrate_adaptive_compiled(
-        problem, method, controller, max_steps, differentiable, checkpoints if differentiable else None, t0, t1,
-        cast(q0), cast(p0), cast(lam0), args, options, t_eval,
+        problem, method, controller, max_steps, differentiable, checkpoints if differentiable else None, step_to, t0,
+        t1, cast(q0), cast(p0), cast(lam0), args, options, t_eval,
     )

@@ -28,7 +28,7 @@ from ._errors import LobattoDAEInputError, NewtonFailure
 from ._controllers import ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
 from ._dense import DenseOutput, dense_size
 from ._events import as_events
-from ._loop import CHUNK, Output, Record, State, init_host, run_host, start_host
+from ._loop import CHUNK, Output, Record, State, init_host, run_host, start_host, steps_to_t_eval
 from ._results import Result
 from ._doubling import for_error_control
 from ._stepper import LobattoIIIAIIIB
@@ -146,7 +146,7 @@ class _Options:
 
     @classmethod
     def check(cls, method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output,
-              events, save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume):
+              events, save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume, t_eval_rows=None):
         if not isinstance(method, LobattoIIIAIIIB):
             raise TypeError(
                 f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3); got {method!r}."
@@ -187,7 +187,8 @@ class _Options:
         every = _check_save_every(save_every)
         if t_eval is not None and save_every not in (None, 1):
             raise LobattoDAEInputError("give t_eval (rows at given times) or save_every (every k-th step point), not both.")
-        output = Output(t_eval=t_eval is not None, dense=bool(dense_output), events=as_events(events))
+        output = Output(t_eval=t_eval is not None, dense=bool(dense_output), events=as_events(events),
+                        step_to_t_eval=steps_to_t_eval(t_eval_rows, ctrl, t_eval is not None))
         if chunk_size is not None and (isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1):
             raise LobattoDAEInputError(f"chunk_size must be a positive integer; got {chunk_size!r}.")
         if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
@@ -441,6 +442,7 @@ def solve(
     checkpoint: str | os.PathLike | None = None,
     checkpoint_every: int | None = None,
     resume: bool = False,
+    t_eval_rows: str | None = None,
 ) -> Solution:
     """Integrate a partitioned index-2 DAE from ``t_span[0]`` to ``t_span[1]``.
 
@@ -475,8 +477,17 @@ def solve(
         problems (bounded energy errors over long times).
     t_eval : array_like, optional
         Output times (within ``t_span``, sorted in the direction of integration) instead of
-        step points, from the dense output; memory is proportional to ``len(t_eval)``.
-        ``t_eval=[t1]`` keeps the final state only.
+        step points; memory is proportional to ``len(t_eval)``. ``t_eval=[t1]`` keeps the
+        final state only.
+    t_eval_rows : {"step", "interpolate"}, optional
+        How the ``t_eval`` rows are made. ``"step"`` (the default under error control): the
+        steps are shortened to end on the requested times, so each row is a step point, as
+        accurate as the run and on the constraint to round-off; a time between two steps
+        the controller would take costs one extra step. ``"interpolate"`` (the default for
+        constant steps and ``ReversibleStepSize``, which keep their steps): rows from the
+        dense output, no extra steps, accurate to order s between step points (at tight
+        tolerances orders of magnitude less accurate than the step points, and ‖φ‖ at the
+        interpolation error; ``stats["constraint_residual"]`` reports it).
     dense_output : bool
         Keep every step's continuous extension: ``sol.sol(t) -> (q, p, lam)``.
     events : callable, Event, or list of them, optional
@@ -533,7 +544,7 @@ def solve(
     _refuse_tracers(t_span=t_span, q0=q0, p0=p0, lam0=lam0, args=args, n_steps=n_steps, dt=dt, rtol=rtol, atol=atol)
     opt = _Options.check(
         method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output, events,
-        save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume,
+        save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume, t_eval_rows,
     )
     # From here on a first Ctrl-C only asks the run to stop at the next chunk boundary (also
     # during validation and compilation), so it never lands inside JAX or between updates.

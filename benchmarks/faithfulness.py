@@ -1,0 +1,148 @@
+"""Faithfulness of error control on the external test set (issue #25).
+
+For every problem of ``benchmarks/testset`` and every (s, rtol) of the grid, ``solve`` with
+``rtol = atol`` and ``t_eval`` at the reference times; the error there (relative to 1 + |y|,
+``testset.error``) is compared with ``max(rtol, the reference's accuracy)``. The contract:
+error ≤ 30 × that on every setting, a log-log slope of error against rtol in [0.8, 1.2]
+(fitted where the error is above 30 × the reference's accuracy), and no run that reports
+success with an error above 1000 × rtol.
+
+    python benchmarks/faithfulness.py                       # the whole grid (slow)
+    python benchmarks/faithfulness.py --problems andrews --stages 4 5 --rtols 1e-6 1e-8
+
+Writes ``benchmarks/results/faithfulness.json`` and ``faithfulness.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import lobattodae as L  # noqa: E402
+from benchmarks.testset import PROBLEMS, error  # noqa: E402
+
+#: The contract of issue #25.
+FAITHFUL = 30.0
+SLOPE = (0.8, 1.2)
+NEVER = 1000.0
+STAGES = (2, 3, 4, 5, 6)
+RTOLS = (1e-4, 1e-6, 1e-8, 1e-10, 1e-12)
+#: Settings whose step counts are out of reach (s = 2 is a second-order method): the number of
+#: steps grows like rtol^(-1/2) over the whole interval.
+MAX_WORK = {2: 1e-8}
+
+
+def run_one(entry, s: int, rtol: float, max_steps: int = 2_000_000) -> dict:
+    setup = entry.build()
+    t0, t1 = setup.t_span
+    t_ref = [t for t in entry.t_ref if min(t0, t1) < t <= max(t0, t1)]
+    start = time.perf_counter()
+    sol = L.solve(setup.problem, L.LobattoIIIAIIIB(stages=s), setup.t_span, setup.q0, setup.p0, args=setup.args,
+                  rtol=rtol, atol=rtol, t_eval=t_ref, throw=False)
+    seconds = time.perf_counter() - start
+    err = error(entry, sol.t, sol.q, sol.p) if sol.success and len(sol.t) == len(t_ref) else math.inf
+    floor = max(rtol, entry.ref_accuracy)
+    return {
+        "problem": entry.name, "s": s, "rtol": rtol, "error": err, "ratio": err / floor,
+        "status": int(sol.status), "success": bool(sol.success), "message": sol.message,
+        "n_steps": int(sol.stats["n_steps"]), "n_rejected": int(sol.stats["n_rejected"]),
+        "max_constraint_residual": float(sol.stats["max_constraint_residual"]), "seconds": seconds,
+    }
+
+
+def slope(rows: list[dict], ref_accuracy: float) -> float:
+    """The log-log slope of error against rtol over the rows above the reference's floor."""
+    use = [r for r in rows if math.isfinite(r["error"]) and r["error"] > FAITHFUL * ref_accuracy]
+    if len(use) < 2:
+        return math.nan
+    return float(np.polyfit(np.log10([r["rtol"] for r in use]), np.log10([r["error"] for r in use]), 1)[0])
+
+
+def verdict(rows: list[dict]) -> list[str]:
+    """The contract's violations among ``rows`` (one problem, one s)."""
+    bad = []
+    for r in rows:
+        if r["success"] and r["ratio"] > FAITHFUL:
+            bad.append(f"{r['problem']} s={r['s']} rtol={r['rtol']:g}: error {r['error']:.2e} = {r['ratio']:.0f} x")
+        if r["success"] and r["error"] > NEVER * r["rtol"] and r["ratio"] > FAITHFUL:
+            bad.append(f"{r['problem']} s={r['s']} rtol={r['rtol']:g}: SUCCESS with error > {NEVER:g} x rtol")
+    return bad
+
+
+def grid(problems, stages, rtols) -> tuple[list[dict], dict]:
+    rows, slopes = [], {}
+    for name in problems:
+        entry = PROBLEMS[name]
+        for s in stages:
+            mine = []
+            for rtol in rtols:
+                if rtol < MAX_WORK.get(s, 0.0):
+                    continue
+                r = run_one(entry, s, rtol)
+                mine.append(r)
+                print(f"{name:>18} s={s} rtol={rtol:7.0e} err={r['error']:9.2e} ratio={r['ratio']:8.3f} "
+                      f"steps={r['n_steps']:7d} rej={r['n_rejected']:4d} {r['seconds']:6.2f}s status={r['status']}",
+                      flush=True)
+            rows += mine
+            slopes[f"{name} s={s}"] = slope(mine, entry.ref_accuracy)
+            print(f"{name:>18} s={s} slope {slopes[f'{name} s={s}']:.2f}", flush=True)
+    return rows, slopes
+
+
+def plot(rows, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = sorted({r["problem"] for r in rows})
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.8), squeeze=False, constrained_layout=True)
+    for ax, name in zip(axes[0], names):
+        mine = [r for r in rows if r["problem"] == name]
+        for s in sorted({r["s"] for r in mine}):
+            rs = [r for r in mine if r["s"] == s and math.isfinite(r["error"])]
+            ax.loglog([r["rtol"] for r in rs], [r["error"] for r in rs], "o-", ms=3, label=f"s = {s}")
+        lim = np.array([1e-13, 1e-3])
+        ax.loglog(lim, lim, "k-", lw=0.8, label="error = rtol")
+        ax.loglog(lim, FAITHFUL * lim, "k:", lw=0.8, label=f"{FAITHFUL:g} x rtol")
+        ref = PROBLEMS[name].ref_accuracy
+        ax.axhline(ref, color="0.6", lw=0.8, ls="--", label="reference accuracy")
+        ax.set_title(name)
+        ax.set_xlabel("rtol = atol")
+        ax.set_ylabel("error / (1 + |y|) at the reference times")
+        ax.legend(fontsize=7)
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--problems", nargs="+", default=sorted(PROBLEMS))
+    ap.add_argument("--stages", nargs="+", type=int, default=list(STAGES))
+    ap.add_argument("--rtols", nargs="+", type=float, default=list(RTOLS))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "faithfulness"))
+    ns = ap.parse_args(argv)
+    L.set_cpu_threads(1)
+    rows, slopes = grid(ns.problems, ns.stages, ns.rtols)
+    bad = verdict(rows)
+    bad += [f"{k}: slope {v:.2f}" for k, v in slopes.items() if math.isfinite(v) and not SLOPE[0] <= v <= SLOPE[1]]
+    out = pathlib.Path(ns.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps({"rows": rows, "slopes": slopes, "violations": bad}, indent=1))
+    plot(rows, out.with_suffix(".png"))
+    print(f"\n{len(rows)} runs, {len(bad)} violations")
+    for line in bad:
+        print("  " + line)
+    return 0 if not bad else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
