@@ -1,0 +1,80 @@
+"""lobattodae._doubling: the step-doubling estimate of a step's own local error."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import lobattodae as L
+from lobattodae._doubling import StepDoubling, for_error_control
+from lobattodae.examples import get_example
+
+
+@pytest.fixture(scope="module")
+def knife():
+    return get_example("knife-edge")
+
+
+def _one_step(ex, s, h, t0=0.3):
+    q0, p0, lam0 = (jnp.asarray(x) for x in ex.exact(t0))
+    doubling = StepDoubling(L.LobattoIIIAIIIB(stages=s, lam_start="consistent"))
+    q1, p1, lam1, info, _ = jax.jit(lambda h: doubling.step(ex.problem, t0, q0, p0, lam0, h, ex.args))(h)
+    qe, pe, _ = ex.exact(t0 + h)
+    true = np.concatenate([np.asarray(q1) - qe, np.asarray(p1) - pe])
+    return np.asarray(info.error), true, info
+
+
+@pytest.mark.parametrize("s", [2, 3, 4])
+def test_the_estimate_is_asymptotically_the_local_error(knife, s):
+    """From exact initial values the error of the kept half steps is the local error; the
+    estimate's ratio to it tends to 1 as h → 0 (measured at h = 0.4, 0.2: s = 2 0.88, 0.93;
+    s = 3 1.06, 1.03; s = 4 0.977, 0.990; the error itself falls like h^(2s-1))."""
+    ratios, sizes = [], []
+    for h in (0.4, 0.2):
+        est, true, info = _one_step(knife, s, h)
+        assert int(info.result) == 0
+        ratios.append(np.linalg.norm(est) / np.linalg.norm(true))
+        sizes.append(np.linalg.norm(true))
+    assert abs(ratios[-1] - 1) < 0.15, ratios
+    assert abs(ratios[-1] - 1) <= abs(ratios[0] - 1) + 0.02, ratios
+    observed = np.log2(sizes[0] / sizes[1])
+    assert abs(observed - (2 * s - 1)) < 0.6, observed
+
+
+def test_the_kept_result_is_two_half_steps_of_the_method(knife):
+    """The solution the run continues from is that of two plain steps of h/2 (bit for bit), and the
+    dense output has two pieces that meet at the midpoint."""
+    method = L.LobattoIIIAIIIB(stages=3, lam_start="consistent")
+    q0, p0, lam0 = (jnp.asarray(x) for x in knife.exact(0.0))
+    h = 0.25
+    q1, p1, lam1, info, _ = StepDoubling(method).step(knife.problem, 0.0, q0, p0, lam0, h, knife.args)
+    qa, pa, la, _, st = method.step(knife.problem, 0.0, q0, p0, lam0, h / 2, knife.args)
+    qb, pb, lb, _, _ = method.step(knife.problem, h / 2, qa, pa, la, h / 2, knife.args, st)
+    np.testing.assert_allclose(q1, qb, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(p1, pb, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(info.dense.t0, [0.0, h / 2])
+    np.testing.assert_allclose(info.dense.q0[1], qa, atol=1e-15)
+
+
+def test_for_error_control_is_the_one_place_the_method_is_adapted():
+    m = L.LobattoIIIAIIIB(stages=4)
+    doubled = for_error_control(m, L.PIController())
+    assert isinstance(doubled, StepDoubling) and doubled.lam_start == "consistent" and doubled.pieces == 2
+    embedded = for_error_control(m, L.PIController(estimate="embedded"))
+    assert isinstance(embedded, L.LobattoIIIAIIIB) and embedded.lam_start == "consistent"
+    assert for_error_control(m, L.ReversibleStepSize()) is m
+    assert for_error_control(L.LobattoIIIAIIIB(lam_start="previous"), L.PIController()).lam_start == "previous"
+
+
+def test_stability_limited_steps_are_caught_on_the_long_sleigh():
+    """The sleigh's turning mode is damped by the constraint; steps beyond the stability limit
+    amplify it (docs/variable-steps.md §2). The embedded estimate let them through (s = 4, rtol
+    1e-8, T = 1000: error 4.8e-7, 48 x rtol); step doubling rejects them (measured 7.7e-11 in
+    55 steps, 13 rejected)."""
+    ex = get_example("sleigh")
+    sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), (0.0, 1000.0), ex.q0, ex.p0, args=ex.args, rtol=1e-8,
+                  atol=1e-8, save_every="final")
+    q, p, _ = ex.exact(1000.0)
+    err = max(np.max(np.abs(sol.q[-1] - q) / (1 + np.abs(q))), np.max(np.abs(sol.p[-1] - p) / (1 + np.abs(p))))
+    assert sol.success and err < 1e-8, err
+    assert sol.stats["n_rejected"] > 0
