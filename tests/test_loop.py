@@ -157,3 +157,16 @@ def test_forward_mode_through_integrate_matches_central_differences(knife):
     fd = (final_y(g + eps) - final_y(g - eps)) / (2 * eps)
     np.testing.assert_allclose(float(tangent), float(fd), rtol=1e-7)
     assert abs(float(tangent)) > 0.1
+
+
+def test_differentiable_runs_stop_at_max_steps_like_the_plain_loop():
+    """With checkpointed segments the scan's trip count is rounded up (205 → 15 × 14); the
+    attempts past max_steps are skipped, so the status is MAX_STEPS, not SUCCESSFUL with the
+    outputs cut (issue #30: with t_eval = [1, 2], status 0 and t = [1, nan])."""
+    ex = get_example("sleigh")
+    m = L.LobattoIIIAIIIB(stages=3)
+    kw = dict(rtol=1e-12, atol=1e-12, max_steps=205, t_eval=np.array([1.0, 2.0]))
+    plain = L.integrate_adaptive(ex.problem, m, (0.0, 2.0), ex.q0, ex.p0, ex.lam0, ex.args, **kw)
+    diff = L.integrate_adaptive(ex.problem, m, (0.0, 2.0), ex.q0, ex.p0, ex.lam0, ex.args, differentiable=True, **kw)
+    assert int(plain.status) == int(diff.status) == L.Result.MAX_STEPS
+    assert int(diff.n_steps) == int(plain.n_steps) and int(diff.n_rows) == 1

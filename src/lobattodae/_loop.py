@@ -511,19 +511,21 @@ def scan_run(problem, method: LobattoIIIAIIIB, controller, state: State, args, l
     def idle(st):
         return st, Steps(nan(()), nan((n,)), nan((n,)), nan((m,)), jnp.asarray(False), nan((d_size,)) if dense else None)
 
-    def body(st, _):
-        live = (st.result == Result.SUCCESSFUL) & ~controller.done(st.controller)
+    def body(st, i):
+        # the segments may round the trip count up: attempts past ``length`` are skipped, so the
+        # final state (and its status) is that of ``length`` attempts
+        live = (st.result == Result.SUCCESSFUL) & ~controller.done(st.controller) & (i < length)
         return jax.lax.cond(live, go, idle, st)
 
     if checkpoints is None or checkpoints >= length:
-        return jax.lax.scan(body, state, None, length=length)
+        return jax.lax.scan(body, state, jnp.arange(length))
     inner = -(-length // checkpoints)
 
     @jax.checkpoint
-    def segment(st, _):
-        return jax.lax.scan(body, st, None, length=inner)
+    def segment(st, first):
+        return jax.lax.scan(body, st, first + jnp.arange(inner))
 
-    state, steps = jax.lax.scan(segment, state, None, length=checkpoints)
+    state, steps = jax.lax.scan(segment, state, inner * jnp.arange(checkpoints))
     return state, jax.tree_util.tree_map(lambda x: x.reshape((-1,) + x.shape[2:])[:length], steps)
 
 
