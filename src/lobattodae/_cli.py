@@ -62,6 +62,9 @@ class _UsageError(Exception):
     pass
 
 
+#: Steps between checkpoints of ``lobattodae run --checkpoint FILE`` without ``--checkpoint-every``.
+CHECKPOINT_EVERY = 100_000
+
 def _positive_int(text: str) -> int:
     try:
         v = int(text)
@@ -166,7 +169,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", default=None,
                    help="checkpoint file (.npz; its rows go to FILE.rows/, appended at each save): written "
                         "periodically and on Ctrl-C/SIGTERM")
-    p.add_argument("--checkpoint-every", type=_positive_int, default=100_000, help="steps between checkpoints")
+    p.add_argument("--checkpoint-every", type=_positive_int, default=None,
+                   help=f"steps between checkpoints (with --checkpoint; default {CHECKPOINT_EVERY:,})")
     p.add_argument("--resume", action="store_true", help="continue from --checkpoint if it exists")
     p.add_argument("--max-recoveries", type=int, default=0, help="retry failed steps as substeps up to this many times")
 
@@ -333,6 +337,8 @@ def _cmd_run(ns) -> int:
     checkpoint = _output_file(ns.checkpoint, [".npz"], "--checkpoint")
     if ns.resume and checkpoint is None:
         raise _UsageError("--resume needs --checkpoint FILE")
+    if ns.checkpoint_every is not None and not ns.checkpoint:
+        raise _UsageError("--checkpoint-every needs --checkpoint FILE (it sets how often that file is written)")
     if ns.max_recoveries < 0:
         raise _UsageError(f"--max-recoveries must be >= 0; got {ns.max_recoveries}")
     ex = get_example(ns.example)
@@ -346,7 +352,7 @@ def _cmd_run(ns) -> int:
             n_steps=ns.n_steps, dt=ns.dt, rtol=ns.rtol, atol=ns.atol, t_eval=ns.t_eval, save_every=ns.save_every,
             lam0=ex.lam0, args=ex.args, throw=False,
             progress=not ns.no_progress, max_recoveries=ns.max_recoveries,
-            checkpoint=checkpoint, checkpoint_every=ns.checkpoint_every if checkpoint else None,
+            checkpoint=checkpoint, checkpoint_every=(ns.checkpoint_every or CHECKPOINT_EVERY) if checkpoint else None,
             resume=ns.resume,
         )
     message, lam_warning = _split_warning(sol.message)

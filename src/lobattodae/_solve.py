@@ -139,6 +139,7 @@ class _Options:
     checkpoint: str | None
     checkpoint_every: int | None
     resume: bool
+    max_steps: int = 0  # adaptive steps: the cap on step attempts (0 for constant steps)
 
     @property
     def adaptive(self) -> bool:
@@ -146,7 +147,8 @@ class _Options:
 
     @classmethod
     def check(cls, method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output,
-              events, save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume, t_eval_rows=None):
+              events, save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume, t_eval_rows=None,
+              max_steps=None):
         if not isinstance(method, LobattoIIIAIIIB):
             raise TypeError(
                 f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3); got {method!r}."
@@ -165,6 +167,9 @@ class _Options:
             if max_step is not None and not math.isinf(float(max_step)):
                 raise LobattoDAEInputError("max_step applies to adaptive steps; with constant steps use dt.")
             control, ctrl = ControlOptions(n=n), ConstantStepSize()
+            if max_steps is not None:
+                raise LobattoDAEInputError("max_steps applies to adaptive steps; constant steps take n_steps (or dt).")
+            max_steps = 0
         else:
             n = h = None
             rtol = RTOL if rtol is None else _positive_float("rtol", rtol)
@@ -178,6 +183,7 @@ class _Options:
                 raise LobattoDAEInputError(f"first_step={first:g} is longer than the interval |t1 - t0| = {abs(t1 - t0):g}.")
             biggest = math.inf if max_step is None else _positive_float("max_step", max_step, allow_inf=True)
             control = ControlOptions(1, rtol, atol, first, biggest)
+            max_steps = _check_max_steps(max_steps, t0, t1, biggest)
             ctrl = PIController() if controller is None else controller
             if not isinstance(ctrl, (PIController, ReversibleStepSize)):
                 raise LobattoDAEInputError(
@@ -204,6 +210,11 @@ class _Options:
             raise LobattoDAEInputError(f"checkpoint_every must be a positive integer; got {checkpoint_every!r}.")
         if resume and checkpoint is None:
             raise LobattoDAEInputError("resume=True needs the checkpoint file to resume from (checkpoint=PATH).")
+        if checkpoint_every is not None and checkpoint is None:
+            raise LobattoDAEInputError(
+                "checkpoint_every sets how often the checkpoint file is written; give the file (checkpoint=PATH) or "
+                "drop checkpoint_every."
+            )
         path = None
         if checkpoint is not None:
             path = os.fspath(checkpoint)
@@ -215,7 +226,33 @@ class _Options:
                     "else is there; remove it or choose another checkpoint path."
                 )
         return cls(t0, t1, n, h, control, ctrl, output, t_eval, every, chunk_size or CHUNK, max_recoveries, path,
-                   checkpoint_every, bool(resume))
+                   checkpoint_every, bool(resume), max_steps)
+
+
+#: The default cap on the step attempts of an adaptive ``solve`` (as scipy and diffrax cap theirs):
+#: far above any run the tolerances ask for, and low enough that no counter can overflow.
+MAX_STEPS = 10_000_000
+#: The largest cap: every counter of the loop is int32 and a step attempt counts up to three
+#: Newton solves of ``max_iterations`` iterations each.
+_MAX_STEPS_LIMIT = 20_000_000
+
+
+def _check_max_steps(max_steps, t0: float, t1: float, max_step: float) -> int:
+    """The cap on step attempts; refuses up front a ``max_step`` that would need more steps."""
+    if max_steps is None:
+        max_steps = MAX_STEPS
+    elif isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or not 0 < max_steps <= _MAX_STEPS_LIMIT:
+        raise LobattoDAEInputError(
+            f"max_steps must be a positive integer up to {_MAX_STEPS_LIMIT:,} (the cap on step attempts); got "
+            f"{max_steps!r}. Split a longer run into several solve calls (or use checkpoint/resume)."
+        )
+    needed = abs(t1 - t0) / max_step
+    if needed > max_steps:
+        raise LobattoDAEInputError(
+            f"max_step={max_step:g} needs at least {needed:.3g} steps over |t1 - t0| = {abs(t1 - t0):g}, more than "
+            f"max_steps={max_steps:,}; raise max_step (or max_steps)."
+        )
+    return int(max_steps)
 
 
 def check_writable(path: str, what: str) -> None:
@@ -443,6 +480,7 @@ def solve(
     checkpoint_every: int | None = None,
     resume: bool = False,
     t_eval_rows: str | None = None,
+    max_steps: int | None = None,
 ) -> Solution:
     """Integrate a partitioned index-2 DAE from ``t_span[0]`` to ``t_span[1]``.
 
@@ -471,6 +509,11 @@ def solve(
     first_step, max_step : float, optional
         Adaptive steps: the first step size (default: chosen from the initial slopes) and an
         upper bound on all of them (default: none).
+    max_steps : int, optional
+        Adaptive steps: the cap on step attempts (default :data:`MAX_STEPS` = 10⁷, at most
+        2·10⁷), checked between compiled chunks of ``chunk_size`` attempts; reaching it ends
+        the run with ``Result.MAX_STEPS`` (``success`` False) and the computed prefix. A
+        ``max_step`` that would need more steps is refused up front.
     controller : PIController or ReversibleStepSize, optional
         The step-size rule of adaptive steps (default ``PIController()``);
         ``ReversibleStepSize()`` keeps the variable-step method symmetric for reversible
@@ -544,7 +587,7 @@ def solve(
     _refuse_tracers(t_span=t_span, q0=q0, p0=p0, lam0=lam0, args=args, n_steps=n_steps, dt=dt, rtol=rtol, atol=atol)
     opt = _Options.check(
         method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output, events,
-        save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume, t_eval_rows,
+        save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume, t_eval_rows, max_steps,
     )
     # From here on a first Ctrl-C only asks the run to stop at the next chunk boundary (also
     # during validation and compilation), so it never lands inside JAX or between updates.
@@ -608,7 +651,7 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
     start = time.perf_counter()
     last_saved = 0 if run is None else int(run.state.n_accepted)
     try:
-        while not interrupted() and (run is None or not _finished(opt, run.state)):
+        while not interrupted() and (run is None or not (_finished(opt, run.state) or _capped(opt, run.state))):
             if run is None:
                 state, chunk, packing = start_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0,
                                                    p0, lam0, args, opt.chunk, opt.every, t_eval)
@@ -647,6 +690,11 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
         run = _save(opt.checkpoint, meta, run)
     elapsed = time.perf_counter() - start
     return _assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failed, finished, throw, elapsed)
+
+
+def _capped(opt: _Options, state: State) -> bool:
+    """The adaptive run used up its ``max_steps`` step attempts (checked between chunks)."""
+    return opt.adaptive and int(state.n_accepted) + int(state.n_rejected) >= opt.max_steps
 
 
 def _progress_numbers(opt: _Options, state: State):
@@ -883,6 +931,8 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
         out = Record(*(x[:n_ok] for x in out))
     elif failed or not Result(int(state.result)).success:  # failed here, or in the run resumed from
         failed_step, status = int(state.n_accepted), Result(int(state.result))
+    elif not finished and _capped(opt, state):
+        status = Result.MAX_STEPS
     elif not finished:
         status = Result.INTERRUPTED
     elif int(state.result) == Result.EVENT:
@@ -930,6 +980,10 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
         message = f"Step {failed_step} (t = {tf:.6g}, h = {hf:.3g}) failed{tried}: {status.message}"
         if throw:
             raise NewtonFailure(message, step=failed_step, t=tf, reason=status.name.lower())
+    elif status == Result.MAX_STEPS:
+        t_now = float(opt.controller.time(state.controller))
+        message = (f"The step limit max_steps={opt.max_steps:,} was reached at t = {t_now:.6g}, before the end of the "
+                   "interval; the computed prefix is returned. Raise max_steps, or loosen the tolerances.")
     elif status == Result.INTERRUPTED:
         t_now = float(opt.controller.time(state.controller))
         of = f" of {opt.n}" if opt.n is not None else ""
