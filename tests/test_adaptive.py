@@ -108,8 +108,8 @@ def test_t_eval_rows_come_from_the_dense_output_when_asked(sleigh, method):
 @pytest.mark.parametrize("s", [3, 5])
 def test_t_eval_rows_are_step_points_by_default(sleigh, s):
     """Error-controlled steps end on the t_eval times: rows as accurate as step points and on the
-    constraint to round-off (measured rtol 1e-12, 201 rows on [0, 10]: s = 3 3.3e-12, s = 5
-    1.2e-15, ‖φ‖ ≤ 6.5e-16; interpolated: 6.6e-10 and 7.3e-10, ‖φ‖ up to 1.1e-9)."""
+    constraint to round-off (measured rtol 1e-12, 201 rows on [0, 10]: s = 3 2.5e-13, s = 5
+    1.2e-15, ‖φ‖ ≤ 6.1e-16; interpolated: 2.3e-10 and 2.0e-10, ‖φ‖ up to 5.3e-10)."""
     te = np.linspace(0.0, 2.0, 21)
     m = L.LobattoIIIAIIIB(stages=s)
     stepped = _solve(sleigh, m, rtol=1e-11, atol=1e-11, t_eval=te)
@@ -186,8 +186,8 @@ def test_dense_output_order_between_step_points(sleigh):
 @pytest.mark.parametrize("s, bound", [(3, 1e-9), (4, 1e-10)])
 def test_terminal_event_on_the_sleigh_heading_matches_the_closed_form(sleigh, s, bound):
     """The zero located on the dense output is refined by re-stepping onto it (Newton in time),
-    so the event time is as accurate as a step point (measured at rtol 1e-10: s = 3 2.5e-11,
-    s = 4 4.5e-14; located on the dense output alone, as before: 6.2e-9 and 3.8e-9)."""
+    so the event time is as accurate as a step point (measured at rtol 1e-10 on (0, 10): s = 3
+    1.5e-12, s = 4 5.4e-15; located on the dense output alone, as before: 6.2e-9 and 3.8e-9)."""
     target = 0.5
 
     def heading(t, q, p, args):
@@ -340,3 +340,20 @@ def test_small_error_controlled_steps_keep_the_constraint_at_round_off(method):
     sol = _solve(ex, method, t_span=(0.0, 100.0), lam0=ex.lam0, rtol=3.16e-12, atol=3.16e-12, save_every="final")
     assert sol.success and sol.stats["n_steps"] > 10_000
     assert sol.stats["max_constraint_residual"] <= 1e-13
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(t_eval_rows="nearest"), "t_eval_rows must be 'step'"),
+    (dict(t_eval_rows="step", controller=L.ReversibleStepSize()), "t_eval_rows='step' needs error-controlled steps"),
+])
+def test_ensemble_checks_t_eval_rows_as_solve_does(sleigh, method, bad, match):
+    """The same bad input, the same error, from solve, integrate_adaptive and ensemble."""
+    ex = sleigh
+    q0, p0, lam0 = (np.stack([x, x]) for x in (ex.q0, ex.p0, ex.lam0))
+    with pytest.raises(L.LobattoDAEInputError, match=match) as from_ensemble:
+        L.ensemble(ex.problem, method, q0, p0, lam0, ex.args, t_span=(0.0, 2.0), t_eval=[1.0], **bad)
+    with pytest.raises(L.LobattoDAEInputError, match=match) as from_solve:
+        _solve(ex, method, rtol=1e-8, t_eval=[1.0], **bad)
+    with pytest.raises(L.LobattoDAEInputError, match=match) as from_pure:
+        L.integrate_adaptive(ex.problem, method, (0.0, 2.0), ex.q0, ex.p0, ex.lam0, ex.args, t_eval=[1.0], **bad)
+    assert str(from_ensemble.value) == str(from_solve.value) == str(from_pure.value)

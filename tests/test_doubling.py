@@ -69,8 +69,8 @@ def test_for_error_control_is_the_one_place_the_method_is_adapted():
 def test_stability_limited_steps_are_caught_on_the_long_sleigh():
     """The sleigh's turning mode is damped by the constraint; steps beyond the stability limit
     amplify it (docs/variable-steps.md §2). The embedded estimate let them through (s = 4, rtol
-    1e-8, T = 1000: error 4.8e-7, 48 x rtol); step doubling rejects them (measured 7.7e-11 in
-    55 steps, 13 rejected)."""
+    1e-8, T = 1000: error 4.8e-7, 48 x rtol); step doubling rejects them (measured 1.9e-12 in
+    92 steps, 11 rejected)."""
     ex = get_example("sleigh")
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), (0.0, 1000.0), ex.q0, ex.p0, args=ex.args, rtol=1e-8,
                   atol=1e-8, save_every="final")

@@ -198,7 +198,11 @@ def test_streaming_files_resume_and_load(knife, method, batch, batched_args, fin
 
 
 def test_adaptive_is_bit_for_bit_vmap(knife, method, batch):
-    q0, p0, lam0, _ = batch
+    q0, p0, _, _ = batch
+    # λ0 consistent with the shared args (g = 1; the batch's λ0 is for its per-trajectory g): ensemble
+    # checks every trajectory's initial values as solve does
+    lam0 = np.asarray(jax.vmap(lambda q, p: L.consistent_lambda(knife.problem, 0.0, q, p, jnp.zeros(1),
+                                                                knife.args))(q0, p0))
     options = dict(rtol=1e-3, atol=1e-5, max_steps=512)
     result = L.ensemble(knife.problem, method, q0, p0, lam0, knife.args, t_span=(0.0, 1.0), **options)
     ref = jax.vmap(lambda q, p, lam: L.integrate_adaptive(knife.problem, method, (0.0, 1.0), q, p, lam, knife.args,

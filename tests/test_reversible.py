@@ -140,7 +140,7 @@ class StartPointDensity(ReversibleStepSize):
 #: |ΔH| over the last tenth of the run divided by that over the first tenth.
 T_ENERGY = 5000.0
 #: The PI controller's tolerance at which it takes about as many steps as the reversible run.
-PI_RTOL = 2.5e-3
+PI_RTOL = 6e-3
 
 
 def _growth(ex, sol):
@@ -176,25 +176,22 @@ def test_reversible_control_keeps_the_energy_error_bounded(contact, energy_runs)
     assert h.max() / h.min() > 1.2
 
 
-def test_error_controlled_steps_cost_energy_accuracy(contact, energy_runs):
-    """At the same number of steps the PI controller's energy error is far larger than the
-    reversible control's: measured (2026-11-27, step-doubling estimate, rtol = PI_RTOL) 29,739
-    steps, max |ΔH| 2.7e-3 (65x the reversible run's 4.2e-5), growth 1.10 from the first to the
-    last tenth; lam_start='previous' 29,853 steps, 7.7e-4 (18x), growth 0.84. (With the former
-    embedded estimate PI's error grew linearly, growth 9.9; the kept result of step doubling
-    is two symmetric half steps and its error per unit step is held to the tolerance, so it no
-    longer drifts over this run, but it is bounded by the tolerance, not by the method's
-    accuracy at that step size.) The unsymmetric explicit density rule drifts (29,573 steps,
-    9.6e-5 → 8.9e-4, growth 9.3): the test above is one a controller that is not symmetric fails."""
+def test_error_controlled_steps_make_the_energy_drift(contact, energy_runs):
+    """At the same number of steps the PI controller's energy error grows linearly while the
+    reversible control's stays bounded: measured (2026-11-27, step-doubling estimate,
+    rtol = PI_RTOL) 29,814 steps, max |ΔH| 2.5e-5 (first tenth) → 2.4e-4 (last tenth), growth
+    9.5; with the paper's symmetric step (lam_start='previous': 29,929 steps, growth 7.6, last
+    tenth 3.8e-5) too, so the unsymmetric step-size sequence alone breaks it (each step is
+    two symmetric half steps). The unsymmetric explicit density rule drifts as well (29,573
+    steps, 9.6e-5 → 8.9e-4, growth 9.3): the test above is one a controller that is not
+    symmetric fails."""
     rev = energy_runs["reversible"]
-    rev_biggest = _growth(contact, rev)[1]
     for key in ("pi", "pi-previous", "start-point"):
         sol = energy_runs[key]
         growth, biggest = _growth(contact, sol)
         assert sol.success
         assert abs(sol.stats["n_steps"] / rev.stats["n_steps"] - 1) < 0.1, (key, sol.stats["n_steps"])
-        assert biggest > 5 * rev_biggest, (key, biggest)  # measured ≥ 18x
-    assert _growth(contact, energy_runs["start-point"])[0] > 4.0
+        assert growth > 4.0, (key, growth)
 
 
 # -- (c) the control variable, options ------------------------------------------------------------

@@ -47,7 +47,7 @@ from ._controllers import PIController, ReversibleStepSize  # noqa: E402
 from ._dense import DenseOutput  # noqa: E402
 from ._events import Event  # noqa: E402
 from ._solve import Solution, solve  # noqa: E402
-from ._ensemble import EnsembleFiles, EnsembleResult, ensemble, load_ensemble  # noqa: E402
+from ._ensemble import EnsembleFileError, EnsembleFiles, EnsembleResult, ensemble, load_ensemble  # noqa: E402
 from ._stepper import LobattoIIIAIIIB, StepInfo, StepperState  # noqa: E402
 from ._tableau import LobattoPair, lobatto_iiia, lobatto_iiib, lobatto_nodes, lobatto_pair, lobatto_weights  # noqa: E402
 
@@ -82,6 +82,7 @@ if _os.environ.get(_CACHE_ENV) and not _cache_switched_off():
 __all__ = [
     "AdaptiveResult",
     "CheckpointError",
+    "EnsembleFileError",
     "DenseOutput",
     "Event",
     "PIController",

@@ -99,7 +99,11 @@ last commit wins, with its segments intact.  After its commit, the first save of
 (``previous`` None or from :func:`load`) removes the segment files the committed main file
 does not list and temporary files of interrupted saves.  Two runs *appending* to one
 checkpoint at the same time are not supported (a fresh save removes the other's segments;
-loading then reports the checkpoint as corrupt, it never mixes rows).
+loading then reports the checkpoint as corrupt, it never mixes rows).  The rows directory
+must not be a symbolic link: :func:`save` and :func:`load` refuse one with a
+:class:`CheckpointError` (:func:`check_rows_directory`), and a save locks, lists and cleans the
+directory through a handle opened without following links, so no file is ever deleted
+through a link.
 
 Errors
 ------
@@ -115,6 +119,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import functools
 import hashlib
 import inspect
@@ -160,6 +165,7 @@ __all__ = [
     "load",
     "exists",
     "rows_directory",
+    "check_rows_directory",
     "fingerprint_arrays",
     "fingerprint_callable",
 ]
@@ -167,12 +173,12 @@ __all__ = [
 FORMAT = "lobattodae-checkpoint"
 #: ``__format__`` of a row segment file.
 ROWS_FORMAT = "lobattodae-checkpoint-rows"
-VERSION = 4
+VERSION = 5
 
 # schema_fingerprint(<the loop's State template>) for the current VERSION.  The loop records
 # it here once the State exists; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "9c12e42f9122523c"  # schema_fingerprint(lobattodae._loop.State) of VERSION
+STATE_FINGERPRINT: str | None = "846ddaf799037470"  # schema_fingerprint(lobattodae._loop.State) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"
@@ -466,23 +472,77 @@ def save(
     payload[_SEGMENTS] = np.asarray(_segments_json(run, len(files), head, fields, counts))
 
     directory = rows_directory(target)
+    check_rows_directory(target)
     try:
         os.mkdir(directory)  # not makedirs: a missing directory of ``path`` is the caller's error
     except FileExistsError:
         pass
-    with _locked(directory):
+    with _rows_directory_handle(target, directory) as dir_fd, _locked(directory, dir_fd):
         if segment is not None:
             _write_atomic(os.path.join(directory, segment), segment_payload)
-            _fsync_directory(directory)
+            _fsync_directory(directory, dir_fd)
         _write_atomic(target, payload)
         _fsync_directory(os.path.dirname(target) or os.curdir)
         if previous is None or not previous.tidy:
-            _remove_leftovers(directory, files)
+            _remove_leftovers(directory, files, dir_fd)
     return Segments(run, files, head, fields, counts, tidy=True)
 
 
+def _link_error(path: str, directory: str) -> CheckpointError:
+    return _error(
+        path,
+        f"cannot use the checkpoint '{path}': its rows directory '{directory}' is a symbolic link, and "
+        "lobattodae never writes, reads or deletes row segments through a link (a fresh save removes the "
+        "segment files it finds there). Put the real directory at that path, or choose another checkpoint path.",
+    )
+
+
+def check_rows_directory(path: str | os.PathLike) -> None:
+    """Refuse (:class:`CheckpointError`, naming it) a rows directory of the checkpoint ``path``
+    that is a symbolic link; :func:`save` and :func:`load` call it, and a caller may call it
+    before the work (nothing there yet is fine)."""
+    shown = _display(path)
+    directory = rows_directory(path)
+    if os.path.islink(directory):
+        raise _link_error(shown, directory)
+
+
+#: Whether the rows directory can be listed and cleaned through a handle opened without following links.
+_DIR_FD = (
+    hasattr(os, "O_DIRECTORY") and hasattr(os, "O_NOFOLLOW") and os.unlink in os.supports_dir_fd
+    and os.scandir in os.supports_fd
+)
+
+
+@contextlib.contextmanager
+def _rows_directory_handle(path: str, directory: str) -> Iterator[int | None]:
+    """A handle of the rows directory opened without following a link (None where the platform
+    cannot work relative to one: then its path is used, after :func:`check_rows_directory`)."""
+    if not _DIR_FD:
+        check_rows_directory(path)
+        yield None
+        return
+    try:
+        fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        if os.path.islink(directory) or exc.errno == errno.ELOOP:
+            raise _link_error(_display(path), directory) from None
+        if exc.errno == errno.ENOTDIR:
+            raise _error(_display(path), f"cannot write the checkpoint '{_display(path)}': its rows go to the "
+                                         f"directory '{directory}', and something else is there; remove it or "
+                                         "choose another checkpoint path.") from None
+        raise
+    try:
+        yield fd
+    finally:
+        os.close(fd)
+
+
 def _write_atomic(target: str, payload: Mapping[str, np.ndarray]) -> None:
-    """Write ``payload`` as an ``.npz`` to a fresh temporary file, fsync it, rename it over ``target``."""
+    """Write ``payload`` as an ``.npz`` to a fresh temporary file, fsync it, rename it over ``target``.
+
+    The temporary file has a unique name and is created exclusively (no existing file or link
+    is followed); the rename replaces a link at ``target``, it does not follow it."""
     directory, base = os.path.split(target)
     fd, tmp = tempfile.mkstemp(prefix=f".{base}.", suffix=".tmp", dir=directory or None)
     try:
@@ -503,14 +563,18 @@ def _write_atomic(target: str, payload: Mapping[str, np.ndarray]) -> None:
 
 
 @contextlib.contextmanager
-def _locked(directory: str) -> Iterator[None]:
-    """Hold an exclusive advisory lock on ``directory`` (where :mod:`fcntl` exists; best effort)."""
+def _locked(directory: str, dir_fd: int | None = None) -> Iterator[None]:
+    """Hold an exclusive advisory lock on ``directory`` (where :mod:`fcntl` exists; best effort),
+    through its handle ``dir_fd`` when given (the lock is released when that is closed)."""
     fd = None
     if fcntl is not None:
-        try:
-            fd = os.open(directory, os.O_RDONLY)
-        except OSError:
-            fd = None
+        if dir_fd is not None:
+            fd = os.dup(dir_fd)
+        else:
+            try:
+                fd = os.open(directory, os.O_RDONLY)
+            except OSError:
+                fd = None
     try:
         if fd is not None:
             try:
@@ -523,12 +587,13 @@ def _locked(directory: str) -> Iterator[None]:
             os.close(fd)  # releases the lock
 
 
-def _remove_leftovers(directory: str, keep: Sequence[str]) -> None:
+def _remove_leftovers(directory: str, keep: Sequence[str], dir_fd: int | None = None) -> None:
     """Remove the segment files in ``directory`` that are not in ``keep`` and the temporary
-    files of interrupted saves (best effort: a file that cannot be removed stays, unread)."""
+    files of interrupted saves (best effort: a file that cannot be removed stays, unread);
+    relative to its handle ``dir_fd`` when given, so never through a link."""
     keep = set(keep)
     try:
-        with os.scandir(directory) as entries:
+        with os.scandir(directory if dir_fd is None else dir_fd) as entries:
             names = [e.name for e in entries if e.is_file(follow_symlinks=False)]
     except OSError:
         return
@@ -537,13 +602,22 @@ def _remove_leftovers(directory: str, keep: Sequence[str]) -> None:
         temporary = name.startswith(".") and name.endswith(".tmp")
         if stale or temporary:
             try:
-                os.unlink(os.path.join(directory, name))
+                if dir_fd is None:
+                    os.unlink(os.path.join(directory, name))
+                else:
+                    os.unlink(name, dir_fd=dir_fd)
             except OSError:
                 pass
 
 
-def _fsync_directory(directory: str) -> None:
+def _fsync_directory(directory: str, dir_fd: int | None = None) -> None:
     """Make the rename durable (best effort; not possible on every platform)."""
+    if dir_fd is not None:
+        try:
+            os.fsync(dir_fd)
+        except OSError:
+            pass
+        return
     try:
         fd = os.open(directory, os.O_RDONLY)
     except OSError:
@@ -920,6 +994,8 @@ def _load_rows(target: str, shown: str, stored, row_names: Sequence[str]):
     and the :class:`Segments` a resumed run appends to."""
     run, count, head, fields, counts = stored
     directory, shown_directory = rows_directory(target), rows_directory(shown)
+    if os.path.islink(directory):
+        raise _link_error(shown, shown_directory)
     parts: dict[str, list[np.ndarray]] = {name: [] for name, _, _ in fields}
     files = []
     digest = head

@@ -184,6 +184,7 @@ class AdaptiveState(NamedTuple):
     atol: jax.Array
     max_step: jax.Array
     order: jax.Array  # k, the power of h in the controlled error (PIController.error_exponent)
+    span: jax.Array  # |t1 - t0| of the requested interval (the unit of the error per unit step)
     n_rejected: jax.Array  # int32
 
 
@@ -224,12 +225,15 @@ class PIController(_TimeAndEnd):
     error-controlled, as for the algebraic variables of index-2 DAEs in DAE codes), a step from
     t to t + h is kept when
 
-        err = rms(e_i / sc_i) · |t + h - t_0| / |h| ≤ 1,
+        err = rms(e_i / sc_i) · |t_1 - t_0| / |h| ≤ 1,
 
-    the error per unit step relative to the time elapsed since the start t_0: the n-th of
-    equal steps may make a local error of tolerance/n, so the local errors add up to about
-    ``tolerance × log(number of steps)`` and the global error follows rtol proportionally
-    (log-log slope 1) instead of growing with the number of steps. The next step is
+    the error per unit step, in units of the requested interval ``(t_0, t_1)``: a step may make
+    the share of the tolerance that its length is of the interval, so the local errors add up
+    to at most the tolerance, the global error follows rtol proportionally (log-log slope 1)
+    and does not grow with the number of steps, and steps at the start, whose errors travel
+    furthest, are held as tightly as the others. (Asking for a longer interval than needed,
+    e.g. to stop at a terminal event, makes every step more careful: the cost grows like
+    ``(|t_1 - t_0| / h)^(1/(2s-1))``.) The next step is
 
         h_new = h · clip(safety · err^(-β₁/k) · err_prev^(β₂/k), fac_min, fac_max),
 
@@ -310,6 +314,7 @@ class PIController(_TimeAndEnd):
             t=t0, h=h.astype(dtype), t0=t0, t_end=t1, err_prev=jnp.asarray(1.0, dtype),
             rejected=jnp.asarray(False), rtol=rtol, atol=atol, max_step=options.max_step,
             order=jnp.asarray(float(k), dtype), n_rejected=jnp.asarray(0, jnp.int32),
+            span=jnp.abs(t1 - t0).astype(dtype),
         )
 
     def proposal(self, st: AdaptiveState):
@@ -319,8 +324,8 @@ class PIController(_TimeAndEnd):
         k = st.order
         scale = st.atol + st.rtol * jnp.maximum(jnp.abs(report.y0), jnp.abs(report.y1))
         err = _rms(report.error / scale)
-        if self.estimate == "doubling":  # per unit step, relative to the elapsed time
-            err = err * jnp.abs(report.t + report.h - st.t0) / jnp.abs(report.h)
+        if self.estimate == "doubling":  # per unit step, relative to the requested interval
+            err = err * st.span / jnp.abs(report.h)
         usable = report.ok & jnp.isfinite(err)
         err = jnp.where(usable, err, jnp.inf)
         accept = err <= 1.0

@@ -18,7 +18,13 @@ over the trajectories and sharded over devices:
   the same shape: one compilation for all of them.
 * **Streaming.** With ``out_dir`` each block is written to its own ``.npz`` file while the
   next one runs, and only the file names are returned (:class:`EnsembleFiles`);
-  :func:`load_ensemble` reads them back. Inputs are read one block at a time (``x[a:b]``), so
+  :func:`load_ensemble` reads them back. A file is written like a checkpoint
+  (:func:`lobattodae._checkpoint._write_atomic`: a unique temporary file, fsynced, renamed
+  over the block's name) and carries a SHA-256 digest of each of its arrays (``digests``),
+  checked whenever it is read: a damaged block is refused by :func:`load_ensemble`
+  (:class:`EnsembleFileError`, naming the file) and computed again by ``if_exists="resume"``
+  (with a warning). Only regular files are opened (a FIFO or directory named like a block is
+  refused, never waited on). Inputs are read one block at a time (``x[a:b]``), so
   NumPy memory maps (``np.load(..., mmap_mode="r")``) keep even the initial values out of memory.
 * **Several processes.** Under ``jax.distributed.initialize`` every process takes its own
   contiguous slice of the global batch (by ``jax.process_index()``), runs it on its local
@@ -37,9 +43,10 @@ import json
 import math
 import os
 import re
-import tempfile
+import stat
 import warnings
 import zipfile
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -49,15 +56,18 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from ._controllers import PIController
+from . import _checkpoint
 from ._cpu import cpu_pool_size
-from ._errors import LobattoDAEInputError, ShapeError
+from ._errors import LobattoDAEInputError, ProblemFunctionError, ShapeError
 from ._loop import integrate, integrate_adaptive
+from ._solve import _Options
+from ._validate import CONSISTENCY_TOL, SINGULAR_RCOND, _initial_quantities, validate_and_residual
 
 __all__ = [
     "AXIS",
     "DEFAULT_BLOCK_PER_DEVICE",
     "MAX_BLOCK_OUTPUT_BYTES",
+    "EnsembleFileError",
     "EnsembleFiles",
     "EnsembleResult",
     "ensemble",
@@ -81,12 +91,28 @@ DEFAULT_ATOL = 1e-10
 DEFAULT_MAX_STEPS = 4096
 #: The file format written with ``out_dir`` (a ``.npz`` per block, see :func:`load_ensemble`).
 FILE_FORMAT = "lobattodae-ensemble"
-FILE_VERSION = 1
+#: 2: every file has a ``digests`` entry (SHA-256 of each array); version 1 files had none.
+FILE_VERSION = 2
 _FILE_GLOB = "ensemble-p*-b*.npz"
 _FILE_RE = re.compile(r"^ensemble-p(\d+)-b(\d+)\.npz$")
 #: The result fields of every run, and those only error-controlled runs have.
 _COMMON_FIELDS = ("q", "p", "lam", "status")
 _ADAPTIVE_FIELDS = ("t", "n_rows", "n_steps", "n_rejected")
+
+
+class EnsembleFileError(LobattoDAEInputError):
+    """An ensemble file cannot be used: unreadable, damaged (an array does not match the digest
+    written with it), not a regular file, or of another format or version.
+
+    Attributes
+    ----------
+    path : str
+        The file.
+    """
+
+    def __init__(self, message: str, path: str | None = None):
+        super().__init__(message)
+        self.path = path
 
 
 class EnsembleResult(NamedTuple):
@@ -137,6 +163,7 @@ class _Plan:
     max_steps: int | None  # error control
     controller: Any
     has_t_eval: bool
+    t_eval_rows: str | None
     save: str
     mesh: Mesh
     treedef: Any  # of args
@@ -162,7 +189,7 @@ def _one(plan: _Plan, numbers, shared, q0, p0, lam0, batched):
     r = integrate_adaptive(
         plan.problem, plan.method, (t0, t1), q0, p0, lam0, args, rtol=rtol, atol=atol, first_step=first_step,
         max_step=max_step, max_steps=plan.max_steps, t_eval=t_eval if plan.has_t_eval else None,
-        controller=plan.controller,
+        controller=plan.controller, t_eval_rows=plan.t_eval_rows,
     )
     if plan.save == "final":
         last = jnp.maximum(r.n_rows - 1, 0)
@@ -311,6 +338,100 @@ def _local_devices(devices) -> list:
     return devices
 
 
+# -- initial values, checked as solve checks them -----------------------------------------------------------
+#: Rows of a block whose pre-check fails that are checked one by one (the first failure raises).
+_MAX_ROWS_CHECKED = 8
+
+
+def _args_hints(leaves, flags, paths, batch: int) -> str:
+    """What may be wrong with the batching of ``args``, for a problem function's error."""
+    hints = []
+    for leaf, flag, path in zip(leaves, flags, paths):
+        shape = tuple(np.shape(leaf))
+        if flag and len(shape) >= 2:
+            hints.append(f"{path} is batched: trajectory k gets {path}[k], of shape {shape[1:]}")
+        elif not flag and len(shape) >= 1 and shape[0] == batch:
+            hints.append(f"{path} has shape {shape}, one entry per trajectory (B = {batch}), but is not marked in "
+                         "batch_args, so every trajectory gets all of it: mark it batched (batch_args) if it holds "
+                         "one value per trajectory")
+    return (" Note: " + "; ".join(hints) + ".") if hints else ""
+
+
+def _row_args(treedef, leaves, flags, k: int):
+    """``args`` of trajectory ``k``: row k of the batched leaves (float64, as the blocks read them)."""
+    return jax.tree_util.tree_unflatten(
+        treedef, [np.asarray(leaf[k], dtype=np.float64) if f else leaf for leaf, f in zip(leaves, flags)]
+    )
+
+
+def _validate_row(problem, t0, q0, p0, lam0, treedef, leaves, flags, paths, batch: int, k: int):
+    """:func:`validate_and_residual` of trajectory ``k`` (``lam0`` None: computed, to learn m);
+    its errors name the trajectory."""
+    try:
+        return validate_and_residual(problem, t0, np.asarray(q0[k], np.float64), np.asarray(p0[k], np.float64),
+                                     None if lam0 is None else np.asarray(lam0[k], np.float64),
+                                     _row_args(treedef, leaves, flags, k))
+    except LobattoDAEInputError as exc:
+        message = str(exc)
+        if "project_initial" in message:
+            message += (" (ensemble has no project_initial: project the rows first, e.g. with "
+                        "lobattodae.validate_initial_values(..., project=True) per trajectory)")
+        message = message.replace("(omit lam0 to have it computed)", "(lobattodae.consistent_lambda computes it)")
+        if isinstance(exc, (ProblemFunctionError, ShapeError)):
+            message += _args_hints(leaves, flags, paths, batch)
+        exc.args = (f"trajectory {k} (row {k} of q0, p0, lam0): {message}",) + exc.args[1:]
+        raise
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2))
+def _passes(problem, treedef, flags, t0, shared, q0, p0, lam0, batched):
+    """Per trajectory of a block: whether it passes the consistency checks of
+    :func:`validate_and_residual` (φ, the hidden constraint with the given λ0, ψ, a nonsingular
+    D_pφ·D_λg; the same tolerances), vectorised. A row that fails is checked again by
+    :func:`validate_and_residual` itself, which raises solve's error."""
+    position = getattr(problem, "position_constraint", None)
+    tol = CONSISTENCY_TOL
+
+    def one(q, p, lam, rows):
+        args = jax.tree_util.tree_unflatten(treedef, _merge(flags, rows, shared))
+        phi, r, jac = _initial_quantities(problem, t0, q, p, lam, args)
+        biggest = lambda x: jnp.max(jnp.abs(x), initial=0.0)  # noqa: E731
+        scale = 1.0 + biggest(p) + biggest(q)
+        jscale = 1.0 + biggest(jac) * (1.0 + biggest(lam))
+        ok = (biggest(phi) <= tol * scale) & (biggest(r) <= tol * jscale * scale)
+        if position is not None:
+            ok &= biggest(position(t0, q, args)) <= tol * scale
+        if jac.shape[0]:
+            sv = jnp.linalg.svd(jac, compute_uv=False)
+            ok &= sv[-1] > SINGULAR_RCOND * sv[0]
+        return ok
+
+    return jax.vmap(one)(q0, p0, lam0, batched)
+
+
+def _check_initial_values(problem, blocks: _Blocks, bounds, treedef, leaves, flags, paths, batch: int) -> None:
+    """Refuse, before any work, what :func:`~lobattodae.solve` refuses: the problem functions and
+    ``args`` on this process's first trajectory (errors of the functions, ``args=None``, m for the
+    width of ``lam0``), then the consistency of every trajectory, block by block."""
+    if not bounds:
+        return
+    t0 = blocks.numbers[0]
+    q0, p0, lam0 = blocks.initial
+    first = bounds[0][0]
+    _, _, lam_first, _ = _validate_row(problem, t0, q0, p0, None, treedef, leaves, flags, paths, batch, first)
+    m = lam_first.shape[0]
+    if lam0.shape[1] != m:
+        raise ShapeError(
+            f"lam0 must have shape (B, m) = ({batch}, {m}): the problem has m = {m} constraint(s); got shape "
+            f"{tuple(lam0.shape)}. Compute consistent rows with lobattodae.consistent_lambda."
+        )
+    for a, b in bounds:
+        host = blocks.inputs(a, b)
+        ok = np.asarray(_passes(problem, treedef, flags, t0, blocks.shared, host[0], host[1], host[2], host[3:]))
+        for k in (np.flatnonzero(~ok[: b - a]) + a)[:_MAX_ROWS_CHECKED]:
+            _validate_row(problem, t0, q0, p0, lam0, treedef, leaves, flags, paths, batch, int(k))
+
+
 # -- blocks --------------------------------------------------------------------------------------------
 def _take(x, a: int, b: int, pad: int) -> np.ndarray:
     """Rows a..b-1 of ``x`` as float64 NumPy (reads only those rows of a memory map), padded with
@@ -334,39 +455,109 @@ def _block_digest(run_digest: str, a: int, b: int, block_inputs) -> str:
     return h.hexdigest()
 
 
+def _array_digest(name: str, x: np.ndarray) -> str:
+    """SHA-256 of one array of a block file: its name, dtype, shape and C-order bytes."""
+    x = np.ascontiguousarray(x)
+    h = hashlib.sha256(f"{FILE_FORMAT}:{name}:{x.dtype.str}:{x.shape}:".encode())
+    h.update(x.tobytes())
+    return h.hexdigest()
+
+
 def _write_npz(path: str, arrays: dict) -> None:
-    """Write ``arrays`` to ``path`` atomically (a temporary file in the same directory, then a rename)."""
-    directory = os.path.dirname(path) or "."
-    fd, tmp = tempfile.mkstemp(prefix=".ensemble-", suffix=".npz.tmp", dir=directory)
+    """Write ``arrays`` and their digests (the entry ``digests``) to ``path`` with the checkpoint's
+    atomic writer: a unique temporary file in the same directory, fsynced, then renamed."""
+    arrays = {name: np.asarray(x) for name, x in arrays.items()}
+    digests = {name: _array_digest(name, x) for name, x in arrays.items()}
+    _checkpoint._write_atomic(path, {**arrays, "digests": np.asarray(json.dumps(digests, sort_keys=True))})
+
+
+def _file_error(path: str, what: str, fix: str = "delete it and run that block again (if_exists='resume' "
+                                                 "recomputes missing blocks)") -> EnsembleFileError:
+    return EnsembleFileError(f"ensemble file '{path}' {what}; {fix}.", path)
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device")):
+        if test(mode):
+            return name
+    return "not a plain file"
+
+
+def _open_regular(path: str):
+    """``path`` opened for reading if it is a regular file (a FIFO would block ``open`` until a
+    writer comes); anything else raises :class:`EnsembleFileError`."""
+    not_regular = "is not a regular file ({}); remove it or use another out_dir"
     try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        info = os.stat(path)
+    except OSError as exc:
+        raise _file_error(path, f"cannot be read ({type(exc).__name__}: {exc})") from exc
+    if not stat.S_ISREG(info.st_mode):
+        raise EnsembleFileError(f"ensemble file '{path}' {not_regular.format(_kind(info.st_mode))}.", path)
+    # O_NONBLOCK: should it have become a FIFO since, open() returns at once (and fstat refuses it)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        raise _file_error(path, f"cannot be read ({type(exc).__name__}: {exc})") from exc
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        raise EnsembleFileError(f"ensemble file '{path}' {not_regular.format(_kind(mode))}.", path)
+    return os.fdopen(fd, "rb")
+
+
+#: Everything NumPy's and zipfile's readers may raise on a damaged file.
+_READ_ERRORS = (OSError, ValueError, EOFError, KeyError, IndexError, TypeError, OverflowError, zipfile.BadZipFile,
+                zipfile.LargeZipFile, NotImplementedError, RuntimeError, zlib.error)
+
+
+def _read_block(path: str, names: Sequence[str] | None = None) -> tuple[dict, dict]:
+    """``(meta, arrays)`` of one block file, each array read checked against its digest:
+    ``names`` (default: all of them) besides ``meta``. Raises :class:`EnsembleFileError`."""
+    with _open_regular(path) as fh:
+        try:
+            with np.load(fh, allow_pickle=False) as z:
+                files = set(z.files)
+                if "meta" not in files:
+                    raise _file_error(path, "is not a lobattodae ensemble file (no 'meta' entry)",
+                                      "remove it from the directory")
+                raw_meta = z["meta"]
+                meta = json.loads(str(raw_meta))
+                if not isinstance(meta, dict) or meta.get("format") != FILE_FORMAT:
+                    raise _file_error(path, "is not a lobattodae ensemble file (format "
+                                      f"{meta.get('format') if isinstance(meta, dict) else None!r})",
+                                      "remove it from the directory")
+                if meta.get("version") != FILE_VERSION:
+                    raise _file_error(path, f"was written in ensemble file version {meta.get('version')!r}; this "
+                                      f"lobattodae reads version {FILE_VERSION}", "run the ensemble again")
+                if "digests" not in files:
+                    raise _file_error(path, "is damaged: it has no 'digests' entry")
+                digests = json.loads(str(z["digests"]))
+                if not isinstance(digests, dict) or set(digests) != files - {"digests"}:
+                    raise _file_error(path, "is damaged: its 'digests' entry does not list its arrays")
+                arrays = {"meta": raw_meta}
+                for name in (sorted(digests) if names is None else names):
+                    if name not in arrays:
+                        if name not in files:
+                            raise _file_error(path, f"is damaged: it has no entry {name!r}")
+                        arrays[name] = z[name]
+                for name, x in arrays.items():
+                    if _array_digest(name, x) != digests[name]:
+                        raise _file_error(path, f"is damaged: its entry {name!r} does not match the digest "
+                                          "written with it")
+        except EnsembleFileError:
+            raise
+        except _READ_ERRORS as exc:  # json.JSONDecodeError is a ValueError
+            raise _file_error(path, f"is damaged or cannot be read as an ensemble file ({type(exc).__name__}: "
+                              f"{exc})") from exc
+    del arrays["meta"]
+    return meta, arrays
 
 
 def _read_meta(path: str) -> dict:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            if "meta" not in z.files:
-                raise LobattoDAEInputError(f"'{path}' is not a lobattodae ensemble file (no 'meta' entry).")
-            meta = json.loads(str(z["meta"]))
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:  # json.JSONDecodeError is a ValueError
-        raise LobattoDAEInputError(
-            f"'{path}' cannot be read as an ensemble file ({type(exc).__name__}: {exc}); delete it and run that "
-            "block again (if_exists='resume' recomputes missing blocks)."
-        ) from exc
-    if meta.get("format") != FILE_FORMAT:
-        raise LobattoDAEInputError(f"'{path}' is not a lobattodae ensemble file (format {meta.get('format')!r}).")
-    if meta.get("version") != FILE_VERSION:
-        raise LobattoDAEInputError(
-            f"'{path}' was written in ensemble file version {meta.get('version')!r}; this lobattodae reads "
-            f"version {FILE_VERSION}. Run the ensemble again."
-        )
-    return meta
+    return _read_block(path, ())[0]
 
 
 def _own_files(out_dir: str, process: int) -> list[str]:
@@ -376,7 +567,7 @@ def _own_files(out_dir: str, process: int) -> list[str]:
 # -- the entry point -----------------------------------------------------------------------------------
 def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=None, h=None, n_steps=None,
              t_span=None, rtol=None, atol=None, first_step=None, max_step=None, max_steps=None, t_eval=None,
-             controller=None, save: str = "final", devices=None, block_size: int | None = None,
+             controller=None, t_eval_rows: str | None = None, save: str = "final", devices=None, block_size: int | None = None,
              out_dir: str | os.PathLike | None = None, if_exists: str = "error") -> EnsembleResult | EnsembleFiles:
     """Integrate a batch of trajectories of one problem, sharded across devices.
 
@@ -384,9 +575,11 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
     ``t_span`` (with ``rtol``, ``atol``, ...) runs :func:`~lobattodae.integrate_adaptive`. Each
     trajectory has its own initial values and, for the leaves of ``args`` marked in
     ``batch_args``, its own parameters. The initial values must be consistent (φ = 0 and λ0
-    from :func:`~lobattodae.consistent_lambda`); nothing is validated beyond shapes, as in
-    the entry points. A host-level driver like :func:`~lobattodae.solve`: not for use inside
-    ``jit``.
+    from :func:`~lobattodae.consistent_lambda`), and are checked as :func:`~lobattodae.solve`
+    checks them (with the same tolerance, every trajectory, before anything is integrated);
+    the options of error-controlled runs obey :func:`~lobattodae.solve`'s rules too (``rtol``,
+    ``t_eval`` sorted in the direction of integration and within ``t_span``, ``controller``).
+    A host-level driver like :func:`~lobattodae.solve`: not for use inside ``jit``.
 
     Parameters
     ----------
@@ -406,10 +599,11 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
         ``KnifeEdgeParams(m=False, J=False, g=True)``.
     t0, h, n_steps
         Constant steps: ``n_steps`` steps of size ``h`` from ``t0`` (default 0).
-    t_span, rtol, atol, first_step, max_step, max_steps, t_eval, controller
+    t_span, rtol, atol, first_step, max_step, max_steps, t_eval, controller, t_eval_rows
         Error-controlled (or reversible) steps, as for :func:`~lobattodae.integrate_adaptive`
         (defaults 1e-8, 1e-10, automatic, no limit, 4096, step points,
-        :class:`~lobattodae.PIController`). Shared by all trajectories.
+        :class:`~lobattodae.PIController`, ``t_eval`` rows as step points under error
+        control). Shared by all trajectories.
     save : {"final", "all"}
         Keep each trajectory's final state (default), or every row (every step point of the
         constant-step grid; ``max_steps + 1`` rows or the ``t_eval`` rows with error control).
@@ -427,7 +621,9 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
     if_exists : {"error", "overwrite", "resume"}
         When ``out_dir`` already holds this process's ensemble files: refuse (default), delete
         them first, or keep each block whose file was written by the same run (same settings,
-        ``args`` and block inputs, checked by a digest) and compute only the others.
+        ``args`` and block inputs, checked by a digest) and is intact (every array matches the
+        digest written with it) and compute only the others; a damaged or unreadable block
+        file is computed again and replaced, with a :class:`RuntimeWarning` naming it.
 
     Returns
     -------
@@ -439,11 +635,20 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
     Raises
     ------
     ShapeError
-        Initial values or batched ``args`` leaves of the wrong shape or dtype, or batch sizes
-        that do not match.
+        Initial values or batched ``args`` leaves of the wrong shape or dtype (``lam0`` not of
+        width m), or batch sizes that do not match.
+    InconsistentInitialValuesError
+        A trajectory whose initial values violate the constraints (φ, the hidden constraint,
+        ψ), as :func:`~lobattodae.solve` would refuse it; the message names the trajectory.
+    ProblemFunctionError
+        A problem function fails on the first trajectory (e.g. ``args=None`` where the problem
+        reads ``args``, or an ``args`` leaf of the wrong shape: batched leaves give each
+        trajectory one row, unbatched ones are passed whole).
     LobattoDAEInputError
         Bad options: both or neither of ``n_steps`` and ``t_span``, options of the other mode,
-        ``block_size``, ``save``, ``devices``, ``if_exists``, existing files.
+        options :func:`~lobattodae.solve` refuses, ``block_size``, ``save``, ``devices``,
+        ``if_exists``, existing files (:class:`EnsembleFileError` for files that are not
+        regular files).
 
     Notes
     -----
@@ -474,7 +679,8 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
         raise LobattoDAEInputError(f"save must be one of {SAVE_MODES}; got {save!r}.")
     if if_exists not in IF_EXISTS:
         raise LobattoDAEInputError(f"if_exists must be one of {IF_EXISTS}; got {if_exists!r}.")
-    mode = _mode(t0, h, n_steps, t_span, rtol, atol, first_step, max_step, max_steps, t_eval, controller)
+    mode = _mode(method, t0, h, n_steps, t_span, rtol, atol, first_step, max_step, max_steps, t_eval, controller,
+                 t_eval_rows)
     q0, p0, lam0, batch = _initial_values(q0, p0, lam0)
     leaves, treedef, flags, paths = _arg_flags(args, batch_args)
     leaves = _check_batched_args(leaves, flags, paths, batch)
@@ -492,11 +698,12 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
         block_size = max(1, min(n_local, DEFAULT_BLOCK_PER_DEVICE * n_dev, MAX_BLOCK_OUTPUT_BYTES // per_trajectory))
     block = max(1, min(block_size, n_local))
     mesh = Mesh(np.asarray(devices), (AXIS,))
-    plan = _Plan(problem, method, mode.n_steps, mode.max_steps, mode.controller, mode.has_t_eval, save, mesh,
-                 treedef, flags)
+    plan = _Plan(problem, method, mode.n_steps, mode.max_steps, mode.controller, mode.has_t_eval, mode.t_eval_rows,
+                 save, mesh, treedef, flags)
     blocks = _Blocks(plan, mode.numbers, [x for x, f in zip(leaves, flags) if not f], (q0, p0, lam0),
                      [x for x, f in zip(leaves, flags) if f], -(-block // n_dev) * n_dev)
     bounds = [(a, min(a + block, stop)) for a in range(start, stop, block)]
+    _check_initial_values(problem, blocks, bounds, treedef, leaves, flags, paths, batch)
     if out_dir is None:
         parts = [part for _, part in blocks.run(((a, b), blocks.inputs(a, b), b - a) for a, b in bounds)]
         return _assemble(parts, np.arange(start, stop, dtype=np.int64), mode.n_steps is not None, n, m,
@@ -522,14 +729,16 @@ class _Mode(NamedTuple):
     max_steps: int | None  # error control
     controller: Any
     has_t_eval: bool
+    t_eval_rows: str | None
     numbers: tuple  # traced: (t0, h) or (t0, t1, rtol, atol, first_step, max_step, t_eval)
     settings: dict  # for the files' meta
     rows: int  # rows of save="all"
 
 
-def _mode(t0, h, n_steps, t_span, rtol, atol, first_step, max_step, max_steps, t_eval, controller) -> _Mode:
+def _mode(method, t0, h, n_steps, t_span, rtol, atol, first_step, max_step, max_steps, t_eval,
+          controller, t_eval_rows=None) -> _Mode:
     adaptive_options = dict(rtol=rtol, atol=atol, first_step=first_step, max_step=max_step, max_steps=max_steps,
-                            t_eval=t_eval, controller=controller)
+                            t_eval=t_eval, controller=controller, t_eval_rows=t_eval_rows)
     if t_span is None:
         if h is None or n_steps is None:
             raise LobattoDAEInputError(
@@ -545,7 +754,7 @@ def _mode(t0, h, n_steps, t_span, rtol, atol, first_step, max_step, max_steps, t
         h = _number("h", h)
         if h == 0.0:
             raise LobattoDAEInputError("h must be nonzero (negative h integrates backwards).")
-        return _Mode(n_steps, None, None, False, (np.float64(t0), np.float64(h)),
+        return _Mode(n_steps, None, None, False, None, (np.float64(t0), np.float64(h)),
                      {"mode": "constant", "t0": t0, "h": h, "n_steps": n_steps}, n_steps + 1)
     if h is not None or n_steps is not None or t0 is not None:
         raise LobattoDAEInputError(
@@ -567,17 +776,26 @@ def _mode(t0, h, n_steps, t_span, rtol, atol, first_step, max_step, max_steps, t
         )
     max_steps = DEFAULT_MAX_STEPS if max_steps is None else max_steps
     _count("max_steps", max_steps)
-    controller = PIController() if controller is None else controller
     if t_eval is not None:
         t_eval = np.asarray(t_eval, dtype=np.float64)
         if t_eval.ndim != 1 or t_eval.size == 0 or not np.all(np.isfinite(t_eval)):
             raise LobattoDAEInputError(f"t_eval must be a non-empty 1-D array of finite times; got {t_eval!r}.")
+    # then solve's own rules, with its messages: the rtol floor, t_eval within t_span and sorted in
+    # the direction of integration, the controller's type, first_step within the span
+    opt = _Options.check(
+        method=method, t_span=(ta, tb), n_steps=None, dt=None, rtol=rtol, atol=atol,
+        first_step=first_step or None, max_step=max_step, controller=controller, t_eval=t_eval,
+        dense_output=False, events=None, save_every=None, chunk_size=None, max_recoveries=0, checkpoint=None,
+        checkpoint_every=None, resume=False, t_eval_rows=t_eval_rows,
+    )
+    controller = opt.controller
     numbers = tuple(np.float64(x) for x in (ta, tb, rtol, atol, first_step, max_step)) + (t_eval,)
     settings = {"mode": "adaptive", "t_span": [ta, tb], "rtol": rtol, "atol": atol, "first_step": first_step,
                 "max_step": repr(max_step), "max_steps": max_steps, "controller": repr(controller),
-                "t_eval": None if t_eval is None else hashlib.sha256(t_eval.tobytes()).hexdigest()}
+                "t_eval": None if t_eval is None else hashlib.sha256(t_eval.tobytes()).hexdigest(),
+                "t_eval_rows": t_eval_rows}
     rows = max_steps + 1 if t_eval is None else t_eval.size
-    return _Mode(None, max_steps, controller, t_eval is not None, numbers, settings, rows)
+    return _Mode(None, max_steps, controller, t_eval is not None, t_eval_rows, numbers, settings, rows)
 
 
 def _guard_cpu_pool(devices: list, *, explicit: bool) -> list:
@@ -662,6 +880,14 @@ def _write_blocks(blocks: _Blocks, bounds, out_dir: str, if_exists: str, run_met
             "if_exists='resume' to keep the blocks of the same run, or use another out_dir."
         )
     paths = [os.path.join(out_dir, file_name(process, k)) for k in range(len(bounds))]
+    for path in existing:  # refused before any work: what cannot be read (resume) or removed
+        try:
+            mode, own = os.stat(path).st_mode, os.lstat(path).st_mode
+        except FileNotFoundError:  # a dangling link: removed below, or replaced
+            continue
+        if (stat.S_ISDIR(own) or (if_exists == "resume" and path in paths)) and not stat.S_ISREG(mode):
+            raise EnsembleFileError(f"ensemble file '{path}' is not a regular file ({_kind(mode)}); remove it or "
+                                    "use another out_dir.", path)
     for path in existing:  # "overwrite": all of them; "resume": those of an earlier run with more blocks
         if if_exists == "overwrite" or path not in paths:
             os.unlink(path)
@@ -673,9 +899,9 @@ def _write_blocks(blocks: _Blocks, bounds, out_dir: str, if_exists: str, run_met
         for k, (a, b) in enumerate(bounds):
             host = blocks.inputs(a, b)
             digest = _block_digest(run_digest, a, b, [x[: b - a] for x in host])
-            if if_exists == "resume" and os.path.exists(paths[k]) and _matches(paths[k], digest):
-                with np.load(paths[k], allow_pickle=False) as z:
-                    count["failed"] += int(np.count_nonzero(z["status"] != 0))
+            failed = _resumable(paths[k], digest) if if_exists == "resume" and os.path.lexists(paths[k]) else None
+            if failed is not None:
+                count["failed"] += failed
                 count["skipped"] += 1
                 continue
             yield (k, a, b, digest), host, b - a
@@ -707,11 +933,21 @@ def _args_token(shared, paths, flags) -> dict:
     return {"shared": digest, "batched": [p for p, f in zip(paths, flags) if f]}
 
 
-def _matches(path: str, digest: str) -> bool:
+def _resumable(path: str, digest: str) -> int | None:
+    """The number of failed trajectories in the block file ``path`` if it is complete, intact
+    (every array matches its digest) and of this run (``digest``); else None: computed again.
+    A file that cannot be used is named in a warning; one that is not a regular file is refused."""
     try:
-        return _read_meta(path).get("block_digest") == digest
-    except LobattoDAEInputError:  # unreadable or foreign: computed again and replaced
-        return False
+        meta, arrays = _read_block(path)
+    except EnsembleFileError as exc:
+        if os.path.exists(path) and not os.path.isfile(path):  # not a regular file: never replaced
+            raise
+        warnings.warn(f"{exc.args[0][:-1]} (if_exists='resume': the block is computed again and the file "
+                      "replaced).", RuntimeWarning, stacklevel=2)
+        return None
+    if meta.get("block_digest") != digest or "status" not in arrays:  # another run's block
+        return None
+    return int(np.count_nonzero(arrays["status"] != 0))
 
 
 def _assemble(parts: list[dict], index: np.ndarray, fixed: bool, n: int, m: int, rows: int,
@@ -749,9 +985,11 @@ def load_ensemble(source, *, fields: Sequence[str] | None = None) -> EnsembleRes
 
     Raises
     ------
+    EnsembleFileError
+        A file that is missing, not a regular file, unreadable, damaged (an array that does not
+        match the digest written with it, or a failed zip CRC), of another format or version.
     LobattoDAEInputError
-        No ensemble files, a file of another format or version, files of different runs,
-        missing or repeated trajectories.
+        No ensemble files, files of different runs, missing or repeated trajectories.
     """
     known = _COMMON_FIELDS + _ADAPTIVE_FIELDS
     if fields is not None:
@@ -777,8 +1015,8 @@ def load_ensemble(source, *, fields: Sequence[str] | None = None) -> EnsembleRes
         raise LobattoDAEInputError("load_ensemble needs at least one ensemble file.")
     metas = []
     for path in paths:
-        if not os.path.isfile(path):
-            raise LobattoDAEInputError(f"'{path}' does not exist (or is not a file).")
+        if not os.path.lexists(path):
+            raise EnsembleFileError(f"'{path}' does not exist.", path)
         metas.append(_read_meta(path))
     runs = {meta["run"] for meta in metas}
     if len(runs) > 1:
@@ -793,8 +1031,7 @@ def load_ensemble(source, *, fields: Sequence[str] | None = None) -> EnsembleRes
     wanted = saved if fields is None else tuple(f for f in fields if f in saved)
     parts = []
     for path in paths:
-        with np.load(path, allow_pickle=False) as z:
-            parts.append({name: z[name] for name in ("index",) + wanted})
+        parts.append(_read_block(path, ("index",) + wanted)[1])
     index = np.concatenate([part["index"] for part in parts])
     order = np.argsort(index, kind="stable")
     index = index[order]

@@ -9,15 +9,26 @@ output to round-off, so an event time is as accurate as the dense output (order 
 step points, ``docs/variable-steps.md``). A *terminal* event does not take the dense value: the loop rejects the
 step and re-takes it to end exactly at the located time, so that the final state is a
 step point of the method (``φ = 0`` to round-off) and the run ends there.
+
+Settings and values are checked when the run is set up: ``terminal`` must be a bool or an
+integer in ``[0, 2**31 - 1]`` (NumPy integers too), ``direction`` a number that is not NaN
+(:class:`Event` and :func:`as_events`), and an event function must return a number, not a
+bool (:func:`event_values`, traced when the loop is set up: a bool has no sign change to
+locate, so its zeros would never be found). A value that is NaN at t0 is refused by
+:func:`lobattodae.solve`; one that becomes non-finite later ends the run at that step point
+with ``Result.EVENT_NOT_FINITE`` (the loop checks, :func:`lobattodae._loop.attempt`).
 """
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._dense import DenseStep, evaluate, span
 from ._errors import LobattoDAEInputError
@@ -29,6 +40,30 @@ __all__ = ["Event", "EventState", "as_events", "crossings", "event_values", "loc
 THETA_TOL = 4 * 2.220446049250313e-16
 #: Iteration cap of the root finder (bisection alone would reach THETA_TOL in 51).
 MAX_ROOT_ITERATIONS = 80
+#: The largest ``terminal``: occurrences are counted in int32.
+MAX_TERMINAL = 2**31 - 1
+
+
+def _terminal(value, what: str) -> int:
+    """``terminal`` as a Python int: a bool (True is 1) or an integer in [0, MAX_TERMINAL]."""
+    if isinstance(value, (bool, np.bool_)):
+        return int(value)
+    if isinstance(value, numbers.Integral) and 0 <= int(value) <= MAX_TERMINAL:
+        return int(value)
+    raise LobattoDAEInputError(
+        f"{what}.terminal must be True/False or an integer from 0 to {MAX_TERMINAL} (0: record only; k: stop at "
+        f"the k-th zero); got {value!r}."
+    )
+
+
+def _direction(value, what: str) -> float:
+    """``direction`` as a Python float: any real number but NaN (its sign is what counts)."""
+    if isinstance(value, numbers.Real) and not math.isnan(float(value)):
+        return float(value)
+    raise LobattoDAEInputError(
+        f"{what}.direction must be a number: > 0 for zeros where the function increases, < 0 where it "
+        f"decreases, 0 for both; got {value!r}."
+    )
 
 
 @dataclass(frozen=True)
@@ -44,6 +79,13 @@ class Event:
     fn: Callable[..., Any]
     terminal: int = 0
     direction: float = 0.0
+
+    def __post_init__(self):
+        if not callable(self.fn):
+            raise LobattoDAEInputError(f"Event needs a callable e(t, q, p, args) -> float; got {self.fn!r}.")
+        # normalised (np.int64(1) and True are 1): equal settings, equal events, one compiled loop
+        object.__setattr__(self, "terminal", _terminal(self.terminal, "Event"))
+        object.__setattr__(self, "direction", _direction(self.direction, "Event"))
 
     @property
     def name(self) -> str:
@@ -66,18 +108,8 @@ def as_events(events) -> tuple[Event, ...]:
             continue
         if not callable(ev):
             raise LobattoDAEInputError(f"events[{i}] must be a callable e(t, q, p, args) -> float; got {ev!r}.")
-        terminal = getattr(ev, "terminal", False)
-        if isinstance(terminal, bool):
-            terminal = int(terminal)
-        if not isinstance(terminal, int) or terminal < 0:
-            raise LobattoDAEInputError(
-                f"events[{i}].terminal must be True/False or a non-negative int (stop at that occurrence); got {terminal!r}."
-            )
-        direction = getattr(ev, "direction", 0.0)
-        try:
-            direction = float(direction)
-        except (TypeError, ValueError):
-            raise LobattoDAEInputError(f"events[{i}].direction must be a number (-1, 0 or 1); got {direction!r}.") from None
+        terminal = _terminal(getattr(ev, "terminal", False), f"events[{i}]")
+        direction = _direction(getattr(ev, "direction", 0.0), f"events[{i}]")
         out.append(Event(ev, terminal, direction))
     return tuple(out)
 
@@ -92,9 +124,21 @@ class EventState(NamedTuple):
 
 
 def event_values(events: tuple[Event, ...], t, q, p, args, dtype):
+    """(E,) the event functions at one point. An event function returning a bool is refused
+    (when the loop is traced, i.e. set up): its values 0 and 1 never change sign."""
     if not events:
         return jnp.zeros((0,), dtype)
-    return jnp.stack([jnp.asarray(ev.fn(t, q, p, args), dtype).reshape(()) for ev in events])
+    values = []
+    for ev in events:
+        value = ev.fn(t, q, p, args)
+        if jnp.asarray(value).dtype == jnp.bool_:
+            raise LobattoDAEInputError(
+                f"event function {ev.name!r} returns a bool; an event is a zero of a continuous function, located "
+                "where its sign changes, and a bool (0 or 1) never changes sign. Return a number that crosses zero "
+                "there instead, e.g. q[0] - 0.5 rather than q[0] > 0.5."
+            )
+        values.append(jnp.asarray(value, dtype).reshape(()))
+    return jnp.stack(values)
 
 
 def crossings(events: tuple[Event, ...], v0, v1):

@@ -279,6 +279,9 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
     final_event = finished & (st.events.stopping >= 0)
     # 3. result
     result = jnp.where(final_event & (result == Result.SUCCESSFUL), Result.EVENT, result)
+    if n_ev:  # an event whose value is not finite can no longer be located: stop, never run on blind
+        blind = kept & ~jnp.all(jnp.isfinite(ev_state.values))
+        result = jnp.where(blind & (result == Result.SUCCESSFUL), Result.EVENT_NOT_FINITE, result)
     result = jnp.where(st.result != Result.SUCCESSFUL, st.result, result).astype(jnp.int32)
     constraint = jnp.max(jnp.abs(problem.phi(t1, q1, p1, args)), initial=0.0)
     keep = functools.partial(jnp.where, kept)

@@ -22,6 +22,7 @@ class Result(enum.IntEnum):
     STEP_SIZE_TOO_SMALL = 5
     MAX_STEPS = 6
     EVENT = 7
+    EVENT_NOT_FINITE = 8
 
     @property
     def success(self) -> bool:
@@ -54,4 +55,8 @@ _MESSAGES = {
     ),
     Result.MAX_STEPS: "The step limit (max_steps) was reached before the end of the interval.",
     Result.EVENT: "A terminal event occurred.",
+    Result.EVENT_NOT_FINITE: (
+        "An event function returned a non-finite value (NaN/inf) at the step point, so its zeros can no "
+        "longer be located; the run stopped there. Make the event function finite along the solution."
+    ),
 }

@@ -220,6 +220,7 @@ class _Options:
             path = os.fspath(checkpoint)
             check_writable(path, "checkpoint")
             rows_dir = _checkpoint.rows_directory(path)
+            _checkpoint.check_rows_directory(path)  # a symbolic link there is refused before any work
             if os.path.lexists(rows_dir) and not os.path.isdir(rows_dir):
                 raise LobattoDAEInputError(
                     f"cannot write the checkpoint '{path}': its rows go to the directory '{rows_dir}', and something "

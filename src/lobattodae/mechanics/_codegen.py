@@ -11,10 +11,22 @@ subexpressions that do not depend on ``v`` are evaluated before the solve, the o
 
 Every function of a model is written into one module source, which is kept (``source``) and
 registered with :mod:`linecache`, so tracebacks show the generated lines.
+
+**No string is pasted into the source unquoted.** The model's name and the docstrings enter as
+``repr()`` literals, parameter names as ``args[<repr>]`` keys; every other name in the source is
+one the generator chose (``q_0``, ``k_3``, ``s_12``). SymPy prints some constructs with names of
+their own (the bound variable of an unevaluated ``Sum``), so before the source is compiled its
+syntax tree is checked against the little it may contain (:func:`_check_source`): function
+definitions of plain arguments, assignments to plain names, arithmetic, calls of ``jax.*`` and
+of the helpers, subscripts of the arguments, number literals, and string literals only as
+docstrings and ``args`` keys. Anything else (an import, a lambda, a comprehension, an unknown
+name, an attribute starting with ``_``) is refused with :class:`~lobattodae.LobattoDAEInputError`
+and nothing is executed.
 """
 
 from __future__ import annotations
 
+import ast
 import functools
 import itertools
 import linecache
@@ -26,6 +38,7 @@ import sympy as sp
 from sympy.printing.numpy import JaxPrinter
 from sympy.printing.precedence import PRECEDENCE
 
+from .._errors import LobattoDAEInputError
 from .._linalg import spd_solve
 
 __all__ = ["FunctionSpec", "SolveSpec", "generate_module"]
@@ -302,22 +315,125 @@ def _function_source(spec: FunctionSpec, t: sp.Symbol, params) -> tuple[str, int
     return "\n".join(lines) + "\n", len(replacements)
 
 
+#: The names a generated module may use besides its own functions' arguments and local variables.
+_GLOBALS = frozenset({"jax", "functools", "_stack", "_matrix", "_scalar", "spd_solve"})
+#: Expression nodes the generated code may contain (operators and contexts are checked by kind).
+_EXPRESSIONS = (ast.BinOp, ast.UnaryOp, ast.BoolOp, ast.Compare, ast.IfExp, ast.Call, ast.keyword, ast.Attribute,
+                ast.Subscript, ast.Name, ast.Constant, ast.Tuple, ast.List)
+_OPERATORS = (ast.operator, ast.unaryop, ast.cmpop, ast.boolop, ast.expr_context)
+
+
+class _UnsafeSource(Exception):
+    """The generated source holds something the generator never writes itself."""
+
+
+def _docstring(stmt) -> bool:
+    return isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Constant) and isinstance(stmt.value.value, str)
+
+
+def _attribute_root(node) -> ast.AST:
+    while isinstance(node, ast.Attribute):
+        node = node.value
+    return node
+
+
+def _check_expression(expr, names: frozenset) -> None:
+    """``expr`` uses only known names, ``jax.<public>`` attributes, numbers and ``args['key']``."""
+    allowed_strings = set()
+    for node in ast.walk(expr):
+        if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name) and node.value.id == "args":
+            if isinstance(node.slice, ast.Constant) and isinstance(node.slice.value, str):
+                allowed_strings.add(id(node.slice))
+    for node in ast.walk(expr):
+        if isinstance(node, _OPERATORS):
+            continue
+        if not isinstance(node, _EXPRESSIONS):
+            raise _UnsafeSource(f"a {type(node).__name__} node")
+        if isinstance(node, ast.Name):
+            if node.id not in names:
+                raise _UnsafeSource(f"the unknown name {node.id!r}")
+        elif isinstance(node, ast.Attribute):
+            root = _attribute_root(node)
+            if node.attr.startswith("_") or not (isinstance(root, ast.Name) and root.id == "jax"):
+                raise _UnsafeSource(f"the attribute {ast.unparse(node)!r}")
+        elif isinstance(node, ast.Constant):
+            value = node.value
+            if isinstance(value, str):
+                if id(node) not in allowed_strings:
+                    raise _UnsafeSource(f"the string literal {value!r} outside a docstring or args[...]")
+            elif isinstance(value, complex) or not isinstance(value, (bool, int, float)):
+                raise _UnsafeSource(f"the constant {value!r}")
+        elif isinstance(node, ast.Call):  # of a helper or of jax.<...> (checked as an attribute above)
+            func = node.func
+            if not ((isinstance(func, ast.Name) and func.id in _GLOBALS) or isinstance(func, ast.Attribute)):
+                raise _UnsafeSource(f"a call of {ast.unparse(func)!r}")
+        elif isinstance(node, ast.keyword):
+            if node.arg is None or node.arg.startswith("_"):
+                raise _UnsafeSource("a ** argument" if node.arg is None else f"the keyword {node.arg!r}")
+
+
+def _check_source(source: str, specs) -> None:
+    """Refuse (``_UnsafeSource``) a generated module that is not made of what the generator writes:
+    see the module docstring."""
+    try:
+        tree = ast.parse(source)
+    except (SyntaxError, ValueError) as exc:
+        raise _UnsafeSource(f"it does not parse ({type(exc).__name__}: {exc})") from None
+    body = list(tree.body)
+    if body and _docstring(body[0]):
+        body = body[1:]
+    expected = [spec.name for spec in specs]
+    if [getattr(stmt, "name", None) for stmt in body] != expected or not all(
+            type(stmt) is ast.FunctionDef for stmt in body):
+        raise _UnsafeSource("statements other than the definitions of " + ", ".join(expected))
+    for fn in body:
+        a = fn.args
+        if fn.decorator_list or fn.returns or getattr(fn, "type_params", None) or a.vararg or a.kwarg \
+                or a.posonlyargs or a.kwonlyargs or a.defaults or a.kw_defaults:
+            raise _UnsafeSource(f"the signature of {fn.name}")
+        params = [arg.arg for arg in a.args]
+        if any(arg.annotation is not None for arg in a.args):
+            raise _UnsafeSource(f"annotations in {fn.name}")
+        stmts = list(fn.body)
+        if stmts and _docstring(stmts[0]):
+            stmts = stmts[1:]
+        local = set(params)
+        for stmt in stmts:
+            if isinstance(stmt, ast.Assign):
+                if len(stmt.targets) != 1 or not isinstance(stmt.targets[0], ast.Name):
+                    raise _UnsafeSource(f"an assignment to {ast.unparse(stmt.targets[0])!r} in {fn.name}")
+                local.add(stmt.targets[0].id)
+            elif not isinstance(stmt, ast.Return) or stmt.value is None:
+                raise _UnsafeSource(f"a {type(stmt).__name__} statement in {fn.name}")
+        bad = sorted(n for n in local if n.startswith("__") or n in _GLOBALS)
+        if bad:
+            raise _UnsafeSource(f"the local name {bad[0]!r} in {fn.name}")
+        names = frozenset(local) | _GLOBALS
+        for stmt in stmts:
+            _check_expression(stmt.value, names)
+
+
 def generate_module(label: str, specs, t: sp.Symbol, params) -> GeneratedModule:
-    """Write the functions ``specs`` into one module and execute it.
+    """Write the functions ``specs`` into one module, check it (:func:`_check_source`) and execute it.
 
     Parameters
     ----------
     label : str
-        Shown in the module's file name (tracebacks).
+        Shown in the module's docstring (as a quoted literal) and file name (tracebacks).
     specs : sequence of FunctionSpec
     t : Symbol
         The time symbol (named ``t``).
     params : sequence of (str, Symbol)
         Keys of the ``args`` dict and the symbols they bind.
+
+    Raises
+    ------
+    LobattoDAEInputError
+        The source holds something the generator does not write itself (see the module
+        docstring); nothing of it has run.
     """
-    header = (
-        f'"""Generated by lobattodae.mechanics for {label!s}: do not edit."""\n'
-    )
+    label = str(label)
+    header = repr(f"Generated by lobattodae.mechanics for {label}: do not edit.") + "\n"
     bodies = []
     counts = {}
     for spec in specs:
@@ -325,7 +441,16 @@ def generate_module(label: str, specs, t: sp.Symbol, params) -> GeneratedModule:
         bodies.append(src)
         counts[spec.name] = count
     source = header + "\n\n".join(bodies)
-    filename = f"<lobattodae.mechanics generated #{next(_counter)}: {label}>"
+    try:
+        _check_source(source, specs)
+    except _UnsafeSource as exc:
+        raise LobattoDAEInputError(
+            f"{label!r}: the generated code failed lobattodae's safety check ({exc}) and was not run. The "
+            "expressions hold something the code generator does not write itself: an unevaluated Sum, Product "
+            "or other construct with variables of its own (apply .doit() first, or write it out), or a name "
+            "that is not a plain identifier."
+        ) from None
+    filename = f"<lobattodae.mechanics generated #{next(_counter)}: {label!r}>"
     namespace = {
         "__name__": "lobattodae.mechanics._generated",
         "jax": jax,
@@ -337,6 +462,6 @@ def generate_module(label: str, specs, t: sp.Symbol, params) -> GeneratedModule:
     }
     code = compile(source, filename, "exec")
     linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
-    exec(code, namespace)  # noqa: S102 - our own generated source
+    exec(code, namespace)  # noqa: S102 - our own generated source, checked by _check_source
     functions = {spec.name: namespace[spec.name] for spec in specs}
     return GeneratedModule(functions=functions, source=source, filename=filename, cse_counts=counts)

@@ -1,0 +1,194 @@
+"""The external test set (benchmarks/testset): definitions, initial values, and a constant-step
+run of each problem against its reference (references from outside lobattodae: published test
+set values, SymPy + scipy, closed forms, mpmath, scipy Radau; see benchmarks/testset/README.md).
+
+Each constant-step run's bound is about twice the error measured for that (s, N) in the
+README's convergence tables, where the error falls at the method's order 2s − 2; losing one
+order would exceed it by far.
+"""
+
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import lobattodae as L
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks.testset import PROBLEMS, TestProblem, error  # noqa: E402
+from benchmarks.testset import andrews, knife_edge, rolling_disc, servo_sleigh, sleigh, vertical_disk  # noqa: E402
+
+NAMES = list(PROBLEMS)
+
+
+def test_registry():
+    assert NAMES == ["andrews", "rolling-disc", "vertical-disk", "sleigh", "knife-edge",
+                     "servo-sleigh", "servo-sleigh-rest"]
+    for name, entry in PROBLEMS.items():
+        assert isinstance(entry, TestProblem) and entry.name == name
+        assert entry.source and entry.ref_accuracy > 0 and entry.test_bound > 0
+        first, second = entry.build(), entry.build()
+        assert first.problem is second.problem  # built once: compiled code is reused
+        assert entry.long == (first.t_span[1] - first.t_span[0] >= 1000)
+        n = first.q0.shape[0]
+        assert first.p0.shape == (n,)
+        assert all(len(row) == n for row in entry.q_ref)
+        assert entry.p_ref is None or all(len(row) == n for row in entry.p_ref)
+        assert max(entry.t_ref) <= first.t_span[1]
+    assert PROBLEMS["servo-sleigh"].build().problem is PROBLEMS["servo-sleigh-rest"].build().problem
+    assert [e.name for e in PROBLEMS.values() if e.long] == ["sleigh", "knife-edge"]
+    assert [e.name for e in PROBLEMS.values() if e.stiff] == ["servo-sleigh", "servo-sleigh-rest"]
+
+
+def test_error_measure():
+    entry = PROBLEMS["knife-edge"]
+    t = np.array(entry.t_ref)
+    q, p = np.array(entry.q_ref), np.array(entry.p_ref)
+    assert error(entry, t, q, p) == 0.0
+    q2 = q.copy()
+    q2[1, 0] += 1e-6 * (1 + abs(q[1, 0]))
+    assert error(entry, t, q2, p) == pytest.approx(1e-6, rel=1e-6)
+    assert error(entry, t[-1], q[-1], p[-1]) == 0.0  # one time
+    with pytest.raises(ValueError):
+        error(entry, [3.0], q[:1], p[:1])  # no reference time
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_initial_values_are_consistent(name):
+    s = PROBLEMS[name].build()
+    q0, p0 = jnp.asarray(s.q0), jnp.asarray(s.p0)
+    t0 = s.t_span[0]
+    phi = np.asarray(s.problem.phi(t0, q0, p0, s.args))
+    assert np.max(np.abs(phi)) <= 1e-14 * (1 + np.max(np.abs(s.p0)))
+    psi = getattr(s.problem, "position_constraint", None)
+    if psi is not None:
+        assert np.max(np.abs(np.asarray(psi(t0, q0, s.args)))) <= 1e-15
+    if PROBLEMS[name].reference is not None:  # closed forms start at their own t = 0 values
+        q_ex, p_ex = PROBLEMS[name].reference(t0)
+        np.testing.assert_allclose(s.q0, q_ex, atol=1e-15)
+        np.testing.assert_allclose(s.p0, p_ex, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_constant_steps_reach_the_reference(name):
+    entry = PROBLEMS[name]
+    s = entry.build()
+    t_span = s.t_span if entry.test_t_end is None else (s.t_span[0], entry.test_t_end)
+    sol = L.solve(s.problem, L.LobattoIIIAIIIB(stages=entry.test_stages), t_span, s.q0, s.p0,
+                  args=s.args, n_steps=entry.test_n_steps)
+    assert sol.success
+    err = error(entry, sol.t, sol.q, sol.p)
+    assert err <= entry.test_bound, (name, err)
+    assert err >= entry.ref_accuracy / 100  # compared with a reference, not with itself
+
+
+# ----------------------------------------------------------------------------- Andrews
+def test_andrews_matches_the_published_initial_data():
+    """The library's consistent λ(0) and the accelerations q''(0) = M⁻¹(f − Gᵀλ) equal the test
+    set's y(15..27) at t = 0; G is the Jacobian of g."""
+    s = andrews.build()
+    q0, p0 = jnp.asarray(s.q0), jnp.asarray(s.p0)
+    lam0 = L.consistent_lambda(s.problem, 0.0, q0, p0, jnp.zeros(6), None)
+    np.testing.assert_allclose(lam0, andrews.LAM0, rtol=1e-13, atol=1e-12)
+    G = andrews.constraint_jacobian(s.q0)
+    np.testing.assert_allclose(jax.jacfwd(andrews.constraints)(q0), G, atol=1e-16)
+    acc = np.linalg.solve(andrews.mass_matrix(s.q0), andrews.forces(s.q0, np.zeros(7)) - G.T @ np.array(andrews.LAM0))
+    np.testing.assert_allclose(acc, andrews.W_DOT0, rtol=1e-13, atol=1e-9)
+    # the published end point satisfies the constraints and their velocity form
+    q_ref = np.array(andrews.Q_REF)
+    assert np.max(np.abs(andrews.constraints(q_ref))) < 1e-12
+    assert np.max(np.abs(andrews.constraint_jacobian(q_ref) @ np.array(andrews.QDOT_REF))) < 1e-9
+
+
+def test_andrews_published_reference_agrees_with_scipy():
+    """The published q(0.03) agrees with an independent scipy DOP853 solution of the index-1
+    form to its stated accuracy (ref_accuracy = 1e-10; measured 8.5e-11, q' 2.7e-8)."""
+    q, qdot = andrews.scipy_reference("DOP853", 1e-13)
+    q_ref, qdot_ref = np.array(andrews.Q_REF), np.array(andrews.QDOT_REF)
+    assert np.max(np.abs(q - q_ref) / (1 + np.abs(q_ref))) < PROBLEMS["andrews"].ref_accuracy
+    assert np.max(np.abs(qdot - qdot_ref) / (1 + np.abs(qdot_ref))) < 5e-8
+
+
+# ----------------------------------------------------------------------------- rolling disc
+def test_rolling_disc_reference_and_conversion():
+    """SymPy's equations reproduce the stored reference at t = 1, 2 (DOP853), and the momenta
+    computed from SymPy's speeds equal those of lobattodae's converted model."""
+    t, q, p, u = rolling_disc.compute_reference("DOP853", 1e-13, t_eval=(1.0, 2.0))
+    np.testing.assert_allclose(q, np.array(rolling_disc.Q_REF)[:2], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(p, np.array(rolling_disc.P_REF)[:2], rtol=0, atol=1e-12)
+    mdl, s = rolling_disc.model(), rolling_disc.build()
+    _, _, qdot, momenta = rolling_disc._numeric()
+    for qk, uk in zip(q, u):
+        np.testing.assert_allclose(mdl.momenta(1.0, qk, qdot(qk, uk), s.args), momenta(qk, uk), rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(mdl.constraint_residual(1.0, qk, momenta(qk, uk), s.args), 0.0, atol=1e-11)
+
+
+# ----------------------------------------------------------------------------- closed forms
+def test_closed_forms_agree_with_the_library_examples():
+    """Two independent implementations of PROBLEMS.md: ours (references) and the examples'."""
+    from lobattodae.examples import chaplygin_sleigh, knife_edge as lib_knife, vertical_rolling_disk
+
+    t = np.array([0.0, 0.7, 10.0, 100.0])
+    for mod, factory in ((knife_edge, lib_knife), (vertical_disk, vertical_rolling_disk)):
+        ex = factory(**mod.PARAMS, **mod.INIT)
+        q_lib, p_lib, _ = ex.exact(t)
+        q, p = mod.exact(t)
+        np.testing.assert_allclose(q, q_lib, rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(p, p_lib, rtol=1e-13, atol=1e-13)
+    ex = chaplygin_sleigh(**sleigh.PARAMS, **sleigh.INIT)
+    q_lib, p_lib, _ = ex.exact(np.array(sleigh.T_REF))
+    np.testing.assert_allclose(np.array(sleigh.Q_REF), q_lib, rtol=1e-14, atol=1e-14)
+    np.testing.assert_allclose(np.array(sleigh.P_REF), p_lib, rtol=1e-14, atol=1e-14)
+
+
+@pytest.mark.parametrize("mod", [knife_edge, vertical_disk])
+def test_closed_forms_solve_the_equations(mod):
+    """q' = f(q, p) and φ = 0 along the closed form (central differences, h = 1e-5)."""
+    s = mod.build()
+    for t in (0.3, 5.0, 77.0):
+        q, p = mod.exact(t)
+        (qa, _), (qb, _) = mod.exact(t - 1e-5), mod.exact(t + 1e-5)
+        f = np.asarray(s.problem.f(t, jnp.asarray(q), jnp.asarray(p), s.args))
+        np.testing.assert_allclose((qb - qa) / 2e-5, f, rtol=1e-8, atol=1e-8)
+        assert abs(float(s.problem.phi(t, jnp.asarray(q), jnp.asarray(p), s.args)[0])) < 1e-13
+
+
+@pytest.mark.slow
+def test_sleigh_reference_recomputed():
+    q, p = sleigh.compute_reference(times=(10.0,))
+    np.testing.assert_array_equal(q[0], sleigh.Q_REF[0])
+    np.testing.assert_array_equal(p[0], sleigh.P_REF[0])
+
+
+# ----------------------------------------------------------------------------- stiff problem
+def test_servo_sleigh_dae_is_the_reference_ode():
+    """At random consistent states the DAE's accelerations (with the consistent λ) equal the
+    hand-written body-velocity ODE's, and the stored reference is reproduced by Radau."""
+    s = servo_sleigh.build_smooth()
+    prm = servo_sleigh.PARAMS
+    rng = np.random.default_rng(1)
+    for _ in range(4):
+        y = rng.normal(size=5)
+        t = float(rng.uniform(0, 10))
+        q, p = (a[0] for a in servo_sleigh.body_to_qp(y))
+        qj, pj = jnp.asarray(q), jnp.asarray(p)
+        assert abs(float(s.problem.phi(t, qj, pj, s.args)[0])) < 1e-14
+        lam = L.consistent_lambda(s.problem, t, qj, pj, jnp.zeros(1), s.args)
+        pdot = np.asarray(s.problem.g(t, qj, pj, lam, s.args))
+        ydot = servo_sleigh.body_rhs(t, y)
+        th, v, w = y[2], y[3], y[4]
+        c, sn = np.cos(th), np.sin(th)
+        # p = m (v e1 + a w e2), e1 = (c, s), e2 = (−s, c), p_θ = I w
+        xdd = ydot[3] * c - v * sn * w - prm["a"] * (ydot[4] * sn + w * w * c)
+        ydd = ydot[3] * sn + v * c * w + prm["a"] * (ydot[4] * c - w * w * sn)
+        expected = np.array([prm["m"] * xdd, prm["m"] * ydd, prm["I"] * ydot[4]])
+        np.testing.assert_allclose(pdot, expected, rtol=1e-10, atol=1e-9 * (1 + np.abs(expected).max()))
+    q, p, _ = servo_sleigh.compute_reference(servo_sleigh.Y0_SMOOTH, "Radau", 1e-13, times=(1.0,))
+    np.testing.assert_allclose(q[0], servo_sleigh.SMOOTH_Q_REF[0], rtol=0, atol=1e-13)
+    np.testing.assert_allclose(p[0], servo_sleigh.SMOOTH_P_REF[0], rtol=0, atol=1e-13)
