@@ -37,7 +37,7 @@ from ._controllers import PIController
 from ._dense import joined
 from ._newton import JacobianCache
 from ._results import Result
-from ._stepper import History, LobattoIIIAIIIB, StepInfo, StepperState
+from ._stepper import History, LobattoIIIAIIIB, StepInfo, StepperState, as_step_arrays
 from ._tableau import LobattoPair
 
 __all__ = ["DoublingState", "StepDoubling", "for_error_control"]
@@ -107,10 +107,7 @@ class StepDoubling:
     def step(self, problem, t0, q0, p0, lam0, h, args: Any = None, state: DoublingState | None = None):
         """A step of size h as two half steps, with the local error estimate (Richardson) in
         ``info.error``; returns what :meth:`LobattoIIIAIIIB.step` returns."""
-        q0 = jnp.asarray(q0)
-        dtype = q0.dtype
-        p0, lam0 = jnp.asarray(p0, dtype), jnp.asarray(lam0, dtype)
-        t0, h = jnp.asarray(t0, dtype), jnp.asarray(h, dtype)
+        t0, q0, p0, lam0, h = as_step_arrays(t0, q0, p0, lam0, h)
         if state is None:
             state = self.init(problem, t0, q0, p0, lam0, args, h)
         # the whole step starts from the same multiplier policy as the first half (same λ_0 data)

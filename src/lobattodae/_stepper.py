@@ -262,10 +262,7 @@ class LobattoIIIAIIIB:
         state : StepperState
             To be passed to the next step (Jacobian reuse, predictor, λ bookkeeping).
         """
-        q0 = jnp.asarray(q0)
-        dtype = q0.dtype
-        p0, lam0 = jnp.asarray(p0, dtype), jnp.asarray(lam0, dtype)
-        t0, h = jnp.asarray(t0, dtype), jnp.asarray(h, dtype)
+        t0, q0, p0, lam0, h = as_step_arrays(t0, q0, p0, lam0, h)
         if state is None:
             state = self.init(problem, t0, q0, p0, lam0, args, h)
         pair = self.pair
@@ -372,6 +369,13 @@ class LobattoIIIAIIIB:
             length=jnp.where(ends, 2 * monitor.length, monitor.length),
             excursions=monitor.excursions + excursion.astype(jnp.int32),
         ), excursion
+
+
+def as_step_arrays(t0, q0, p0, lam0, h):
+    """A step's inputs as JAX arrays of q0's float dtype."""
+    q0 = jnp.asarray(q0)
+    dtype = q0.dtype
+    return tuple(jnp.asarray(x, dtype) for x in (t0, q0, p0, lam0, h))
 
 
 def _fresh_monitor(dtype, excursions) -> LamMonitor:
