@@ -216,7 +216,8 @@ def test_bad_inputs_are_our_errors_naming_the_argument(knife, method, batch):
 def test_consistent_inputs_still_run(knife, method, batch):
     res = _run(knife, method, batch)
     assert (res.status == 0).all()
+    # s = 2 at the default rtol 1e-8 needs ~4000 steps per unit of time: a looser tolerance
     adaptive = L.ensemble(knife.problem, method, *batch, knife.args, t_span=(1.0, 0.0), t_eval=[0.75, 0.25],
-                          save="all")
+                          rtol=1e-5, atol=1e-5, save="all")
     assert (adaptive.status == 0).all()
     np.testing.assert_array_equal(adaptive.t, np.tile([0.75, 0.25], (3, 1)))

@@ -169,4 +169,4 @@ def test_differentiable_runs_stop_at_max_steps_like_the_plain_loop():
     plain = L.integrate_adaptive(ex.problem, m, (0.0, 2.0), ex.q0, ex.p0, ex.lam0, ex.args, **kw)
     diff = L.integrate_adaptive(ex.problem, m, (0.0, 2.0), ex.q0, ex.p0, ex.lam0, ex.args, differentiable=True, **kw)
     assert int(plain.status) == int(diff.status) == L.Result.MAX_STEPS
-    assert int(diff.n_steps) == int(plain.n_steps) and int(diff.n_rows) == 1
+    assert int(diff.n_steps) == int(plain.n_steps) and int(diff.n_rows) == int(plain.n_rows) < 2
