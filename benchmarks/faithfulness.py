@@ -108,15 +108,19 @@ def plot(rows, path):
     import matplotlib.pyplot as plt
 
     names = sorted({r["problem"] for r in rows})
-    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.8), squeeze=False, constrained_layout=True)
-    for ax, name in zip(axes[0], names):
+    ncol = min(4, len(names))
+    nrow = -(-len(names) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.8 * nrow), squeeze=False, constrained_layout=True)
+    for ax in axes.flat[len(names):]:
+        ax.set_visible(False)
+    for ax, name in zip(axes.flat, names):
         mine = [r for r in rows if r["problem"] == name]
         for s in sorted({r["s"] for r in mine}):
             rs = [r for r in mine if r["s"] == s and math.isfinite(r["error"])]
             ax.loglog([r["rtol"] for r in rs], [r["error"] for r in rs], "o-", ms=3, label=f"s = {s}")
         lim = np.array([1e-13, 1e-3])
         ax.loglog(lim, lim, "k-", lw=0.8, label="error = rtol")
-        ax.loglog(lim, FAITHFUL * lim, "k:", lw=0.8, label=f"{FAITHFUL:g} x rtol")
+        ax.loglog(lim, FAITHFUL * lim, "r:", lw=1.0, label=f"{FAITHFUL:g} x rtol (the contract)")
         ref = PROBLEMS[name].ref_accuracy
         ax.axhline(ref, color="0.6", lw=0.8, ls="--", label="reference accuracy")
         ax.set_title(name)
