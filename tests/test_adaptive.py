@@ -336,10 +336,11 @@ def test_small_error_controlled_steps_keep_the_constraint_at_round_off(method):
     """Regression: at tight tolerances (steps of ~0.004 on the falling disk) a Jacobian reused
     for many steps contracts slowly at increments of ~1e-12, and that was taken for round-off:
     steps were accepted with ‖φ‖ up to 2.9e-12. A reused Jacobian must reach the round-off
-    band itself (or be refreshed) before a stagnating iteration is accepted."""
+    band itself (or be refreshed) before a stagnating iteration is accepted. (Measured with step
+    doubling: 9,344 steps of ~0.011, each two half steps of the method of ~0.005.)"""
     ex = get_example("falling-disk-general")
     sol = _solve(ex, method, t_span=(0.0, 100.0), lam0=ex.lam0, rtol=3.16e-12, atol=3.16e-12, save_every="final")
-    assert sol.success and sol.stats["n_steps"] > 10_000
+    assert sol.success and sol.stats["n_steps"] > 5_000
     assert sol.stats["max_constraint_residual"] <= 1e-13
 
 
