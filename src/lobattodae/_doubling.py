@@ -90,11 +90,6 @@ class StepDoubling:
         return self.method.order()
 
     @property
-    def error_order(self) -> int:
-        """The power of h in the local error, ``2s - 1``."""
-        return 2 * self.stages - 1
-
-    @property
     def richardson(self) -> float:
         """``1 / (2^(2s-2) - 1)``: the half steps' share of the difference of the two results."""
         return 1.0 / (2.0 ** (2 * self.stages - 2) - 1.0)
