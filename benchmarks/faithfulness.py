@@ -55,7 +55,7 @@ def run_one(entry, s: int, rtol: float, max_steps: int = 2_000_000) -> dict:
     floor = max(rtol, entry.ref_accuracy)
     return {
         "problem": entry.name, "s": s, "rtol": rtol, "error": err, "ratio": err / floor,
-        "status": int(sol.status), "success": bool(sol.success), "message": sol.message,
+        "status": int(sol.result), "success": bool(sol.success), "message": sol.message,
         "n_steps": int(sol.stats["n_steps"]), "n_rejected": int(sol.stats["n_rejected"]),
         "max_constraint_residual": float(sol.stats["max_constraint_residual"]), "seconds": seconds,
     }

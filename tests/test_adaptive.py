@@ -195,7 +195,7 @@ def test_terminal_event_on_the_sleigh_heading_matches_the_closed_form(sleigh, s,
 
     heading.terminal = True
     sol = _solve(sleigh, L.LobattoIIIAIIIB(stages=s), rtol=1e-10, atol=1e-10, events=heading)
-    assert sol.status == L.Result.EVENT and sol.success
+    assert sol.result == L.Result.EVENT and sol.success
     t_exact = brentq(lambda t: sleigh.exact(t)[0][2] - target, 0.01, 2.0, xtol=1e-15)
     assert abs(sol.t_events[0][0] - t_exact) < bound
     assert sol.t[-1] == sol.t_events[0][0]
@@ -227,7 +227,7 @@ def test_solving_again_with_the_same_event_function_does_not_recompile(sleigh, m
     finally:
         jax.monitoring.unregister_event_duration_listener(listener)
     assert n_first > 0 and len(compiles) == n_first
-    assert all(s.status == L.Result.EVENT for s in [first, *again, bare])
+    assert all(s.result == L.Result.EVENT for s in [first, *again, bare])
     assert bare.t_events[0][0] == first.t_events[0][0] == again[0].t_events[0][0]
 
 
@@ -242,7 +242,7 @@ def test_non_terminal_events_with_direction(sleigh, method):
 
     x_falling.direction = -1.0
     sol = _solve(sleigh, method, rtol=1e-10, atol=1e-10, events=[x_rising, x_falling], dense_output=True)
-    assert sol.status == L.Result.SUCCESSFUL
+    assert sol.result == L.Result.SUCCESSFUL
     te = np.linspace(0, 2, 20001)
     pe = sleigh.exact(te)[1][:, 1] - 1.1
     ups = te[1:][(pe[:-1] < 0) & (pe[1:] >= 0)]
@@ -282,7 +282,7 @@ def test_adaptive_resume_is_bitwise_identical(sleigh, method, tmp_path, ctrl_c_e
     path = tmp_path / "run.npz"
     part = _solve(sleigh, method, rtol=1e-9, atol=1e-9, chunk_size=16, t_span=(0.0, 20.0), checkpoint=path,
                   progress=Stop())
-    assert part.status == L.Result.INTERRUPTED and len(part.t) < len(ref.t)
+    assert part.result == L.Result.INTERRUPTED and len(part.t) < len(ref.t)
     full = _solve(sleigh, method, rtol=1e-9, atol=1e-9, chunk_size=16, t_span=(0.0, 20.0), checkpoint=path,
                   resume=True)
     np.testing.assert_array_equal(full.t, ref.t)

@@ -43,7 +43,7 @@ def test_interrupt_returns_prefix_and_resume_is_bitwise_identical(setup, tmp_pat
     path = tmp_path / "run.npz"
     part = L.solve(ex.problem, method, (0.0, 30.0), ex.q0, ex.p0, checkpoint=path, checkpoint_every=1024,
                    progress=_StopAfter(3), **kw)
-    assert not part.success and part.status == L.Result.INTERRUPTED
+    assert not part.success and part.result == L.Result.INTERRUPTED
     assert len(part.t) == 3 * CHUNK + 1 and "Interrupted after 1536 of 3000 steps" in part.message
     np.testing.assert_array_equal(part.q, ref.q[: len(part.t)])
     assert path.exists()
@@ -213,7 +213,7 @@ def test_interrupts_at_random_moments_resume_bit_for_bit(setup, tmp_path, seed):
     solve = lambda **more: L.solve(ex.problem, method, (0.0, 30.0), ex.q0, ex.p0, checkpoint=path,  # noqa: E731
                                    checkpoint_every=64, **kw, **more)
     part = _interrupted(solve, delay)
-    assert part is None or part.status in (L.Result.INTERRUPTED, L.Result.SUCCESSFUL)
+    assert part is None or part.result in (L.Result.INTERRUPTED, L.Result.SUCCESSFUL)
     full = solve(resume=True)
     assert full.success
     for name in ("t", "q", "p", "lam"):
@@ -360,7 +360,7 @@ def test_dense_output_and_event_rows_are_checkpointed_incrementally(setup, tmp_p
     path = tmp_path / "run.npz"
     part = L.solve(ex.problem, method, (0.0, 30.0), ex.q0, ex.p0, checkpoint=path, checkpoint_every=CHUNK,
                    progress=_StopAfter(4), **kw)
-    assert part.status == L.Result.INTERRUPTED
+    assert part.result == L.Result.INTERRUPTED
     directory = _checkpoint.rows_directory(path)
     dense_rows, event_rows = [], []
     for f in sorted(os.listdir(directory)):
@@ -402,7 +402,7 @@ def test_many_random_interrupts_resume_bit_for_bit(tmp_path):
             os.unlink(f)
         for attempt in range(int(rng.integers(1, 4))):
             part = _interrupted(lambda: solve(resume=True), float(rng.uniform(0.0, duration)))
-            statuses.append(None if part is None else part.status)
+            statuses.append(None if part is None else part.result)
         full = solve(resume=True)
         assert full.success, trial
         _assert_same_solution(full, ref, dense=True, events=True)

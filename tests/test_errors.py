@@ -185,7 +185,7 @@ def test_newton_failure_status_without_throw_returns_prefix():
     sol = L.solve(prob, L.LobattoIIIAIIIB(stages=3), (0, 10), np.zeros(3), np.array([1.0, 1.0, 0.0]), n_steps=2,
                   args=1e4, throw=False)
     assert not sol.success
-    assert sol.status in (L.Result.DIVERGED, L.Result.MAX_ITERATIONS, L.Result.NONFINITE)
+    assert sol.result in (L.Result.DIVERGED, L.Result.MAX_ITERATIONS, L.Result.NONFINITE)
     assert "Step 0" in sol.message
     assert sol.stats["failed_step"] == 0
     assert len(sol.t) == 1 and np.all(np.isfinite(sol.q))  # only the initial point
@@ -195,7 +195,7 @@ def test_failure_midway_keeps_finite_prefix():
     prob = _stiff_particle()
     q0, p0 = np.zeros(3), np.array([1.0, 1.0, 0.0])
     sol = L.solve(prob, L.LobattoIIIAIIIB(stages=2), (0, 6), q0, p0, n_steps=20, args=100.0, throw=False)
-    assert not sol.success and sol.status == L.Result.DIVERGED
+    assert not sol.success and sol.result == L.Result.DIVERGED
     k = sol.stats["failed_step"]
     assert k == 2 and len(sol.t) == k + 1 and sol.t[-1] == pytest.approx(0.6)
     assert "Step 2 (t = 0.6, h = 0.3)" in sol.message

@@ -51,7 +51,7 @@ def test_a_nan_event_value_after_t0_stops_the_run_with_its_status(sleigh, termin
 
     nan_later.terminal = terminal
     sol = _solve(sleigh, nan_later, throw=False)
-    assert not sol.success and sol.status == L.Result.EVENT_NOT_FINITE
+    assert not sol.success and sol.result == L.Result.EVENT_NOT_FINITE
     assert "event function returned a non-finite value" in sol.message
     assert 0.5 < sol.t[-1] < 1.0 and np.all(np.isfinite(sol.q))
 
@@ -106,7 +106,7 @@ def test_numpy_integers_and_bools_are_accepted_as_terminal(sleigh, terminal):
         assert event.terminal == 1 and type(event.terminal) is int
     assert L.Event(_heading, terminal=terminal) == L.Event(_heading, terminal=1)  # one compiled loop
     sol = _solve(sleigh, _with(terminal=terminal))
-    assert sol.status == L.Result.EVENT and abs(sol.q[-1, 2] - 0.4) < 1e-6
+    assert sol.result == L.Result.EVENT and abs(sol.q[-1, 2] - 0.4) < 1e-6
 
 
 @pytest.mark.parametrize("direction, expected", [(np.float32(-2.0), -2.0), (np.int64(1), 1.0), (0, 0.0),

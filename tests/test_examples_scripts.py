@@ -35,7 +35,7 @@ def reference(touchdown_script):
 def test_falling_disk_touchdown_time_matches_the_reference(touchdown_script, reference):
     td = touchdown_script.touchdown()
     t_ref, y_ref, _ = reference
-    assert td.solution.status == L.Result.EVENT and td.solution.success
+    assert td.solution.result == L.Result.EVENT and td.solution.success
     assert abs(td.t - t_ref) <= TOUCHDOWN_REL_TOL * abs(t_ref), (td.t, t_ref)
     assert td.solution.t[-1] == td.t  # the run ends on the event
     # the disk fell: from the initial tilt to the touchdown tilt arctan(1/AXLE)

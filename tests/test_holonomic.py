@@ -198,7 +198,7 @@ def test_terminal_event_ends_on_the_constraint(pendulum):
     bottom.terminal = True
     sol = L.solve(pe.model.problem, L.LobattoIIIAIIIB(stages=4), (0.0, 5.0), pe.q0, pe.p0, rtol=1e-9, atol=1e-9,
                   args=pe.args, events=[bottom])
-    assert sol.status == L.Result.EVENT
+    assert sol.result == L.Result.EVENT
     # the zero is located on the dense output (order s between step points), so the final x is
     # the dense output's error, not round-off
     assert abs(sol.q[-1, 0]) < 1e-7 and sol.t[-1] == sol.t_events[0][0]

@@ -102,11 +102,11 @@ def _check_solution(sol, h):
     assert np.all(_recomputed_constraint(sol) <= tol)
     np.testing.assert_allclose(np.diff(sol.t), h, rtol=1e-10)
     if sol.success:
-        assert sol.status == L.Result.SUCCESSFUL
+        assert sol.result == L.Result.SUCCESSFUL
         assert n_pts == N_STEPS + 1 and sol.stats["failed_step"] is None
         assert sol.t[-1] == pytest.approx(N_STEPS * h, rel=1e-14)
     else:
-        assert sol.status != L.Result.SUCCESSFUL
+        assert sol.result != L.Result.SUCCESSFUL
         k = sol.stats["failed_step"]
         assert k == n_pts - 1 < N_STEPS
         assert f"Step {k} " in sol.message and "failed" in sol.message
@@ -149,7 +149,7 @@ def test_random_consistent_initial_data(name):
             err = info.value
             assert err.step == sol.stats["failed_step"]
             assert err.t == pytest.approx(sol.t[-1], rel=1e-12, abs=1e-15)
-            assert err.reason == sol.status.name.lower()
+            assert err.reason == sol.result.name.lower()
             assert str(err) == sol.message
 
     check()

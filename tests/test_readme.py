@@ -34,7 +34,7 @@ def test_readme_quick_start_and_variable_steps_examples_run_as_written():
     check = """
 import json
 print("RESULT", json.dumps({
-    "status": int(sol.status), "event": int(L.Result.EVENT), "t_event": float(sol.t_events[0][0]),
+    "status": int(sol.result), "event": int(L.Result.EVENT), "t_event": float(sol.t_events[0][0]),
     "theta_event": float(sol.q_events[0][0][2]), "t_end": float(sol.t[-1]),
     "dense_q": [float(v) for v in sol.sol(0.3)[0]], "exact_q": [float(v) for v in ex.exact([0.3])[0][0]],
     "phi": float(sol.stats["max_constraint_residual"]),

@@ -270,7 +270,7 @@ def test_a_density_that_is_not_positive_stops_the_run(contact, density):
     ex = contact
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 5.0), ex.q0, ex.p0, args=ex.args,
                   controller=ReversibleStepSize(density), first_step=FIRST_STEP, throw=False)
-    assert not sol.success and sol.status == L.Result.NONFINITE
+    assert not sol.success and sol.result == L.Result.NONFINITE
     assert np.all(np.isfinite(sol.q)) and sol.t[-1] <= 1.0 + 0.3
 
 

@@ -21,7 +21,7 @@ def _solve(ex, **kw):
 
 def test_adaptive_runs_stop_at_max_steps_with_the_prefix(sleigh):
     sol = _solve(sleigh, rtol=1e-12, atol=1e-12, max_steps=10, chunk_size=8, throw=False)
-    assert sol.status == L.Result.MAX_STEPS and not sol.success
+    assert sol.result == L.Result.MAX_STEPS and not sol.success
     assert "max_steps=10" in sol.message
     # checked between chunks: the run stops after the chunk that reached the cap
     assert 10 <= sol.stats["n_steps"] + sol.stats["n_rejected"] <= 16

@@ -24,7 +24,7 @@ def _solve(ex, s=3, n=40, **kw):
 
 def test_solution_shapes_and_contents(knife):
     sol = _solve(knife, n=40)
-    assert sol.success and sol.status == L.Result.SUCCESSFUL
+    assert sol.success and sol.result == L.Result.SUCCESSFUL
     assert sol.t.shape == (41,) and sol.q.shape == (41, 3) and sol.p.shape == (41, 3) and sol.lam.shape == (41, 1)
     assert sol.t[0] == knife.t_span[0] and sol.t[-1] == knife.t_span[1]
     np.testing.assert_allclose(np.diff(sol.t), sol.stats["h"], rtol=1e-12)
@@ -276,7 +276,7 @@ def test_ctrl_c_before_the_first_chunk_returns_the_initial_point(knife, monkeypa
     monkeypatch.setattr(S, "_deferred_interrupts", lambda: contextlib.nullcontext(lambda: True))
     path = tmp_path / "run.npz"
     sol = _solve(knife, n=40, checkpoint=path)
-    assert sol.status == L.Result.INTERRUPTED and sol.stats["n_steps"] == 0
+    assert sol.result == L.Result.INTERRUPTED and sol.stats["n_steps"] == 0
     np.testing.assert_array_equal(sol.t, [knife.t_span[0]])
     np.testing.assert_array_equal(sol.q, np.asarray(knife.q0, np.float64)[None])
     monkeypatch.undo()

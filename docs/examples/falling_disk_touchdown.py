@@ -105,7 +105,7 @@ def touchdown(rtol: float = RTOL, stages: int = STAGES, **overrides) -> Touchdow
     ex = disk(**overrides)
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=stages), ex.t_span, ex.q0, ex.p0, args=ex.args,
                   rtol=rtol, atol=rtol, events=[TOUCHDOWN])
-    if sol.status != L.Result.EVENT:
+    if sol.result != L.Result.EVENT:
         raise RuntimeError(f"no touchdown before t = {T_MAX:g}: {sol.message}")
     return Touchdown(float(sol.t_events[0][0]), sol.q[-1], sol.p[-1], sol.lam[-1],
                      float(sol.stats["constraint_residual"][-1]), int(sol.stats["n_steps"]),

@@ -32,7 +32,8 @@ from ._errors import (  # noqa: E402
     SolverError,
 )
 from ._validate import validate_initial_values  # noqa: E402
-from ._plotting import plot_convergence, plot_diagnostics, plot_solution  # noqa: E402
+from ._animation import animate  # noqa: E402
+from ._plotting import plot, plot_convergence, plot_solution  # noqa: E402
 from ._problem import (  # noqa: E402
     MechanicalSystem,
     NonholonomicSystem,
@@ -46,7 +47,7 @@ from ._loop import AdaptiveResult, IntegrateResult, integrate, integrate_adaptiv
 from ._controllers import PIController, ReversibleStepSize  # noqa: E402
 from ._dense import DenseOutput  # noqa: E402
 from ._events import Event  # noqa: E402
-from ._solve import Solution, solve  # noqa: E402
+from ._solve import STATS, Solution, solve  # noqa: E402
 from ._ensemble import EnsembleFileError, EnsembleFiles, EnsembleResult, ensemble, load_ensemble  # noqa: E402
 from ._stepper import LobattoIIIAIIIB, StepInfo, StepperState  # noqa: E402
 from ._tableau import LobattoPair, lobatto_iiia, lobatto_iiib, lobatto_nodes, lobatto_pair, lobatto_weights  # noqa: E402
@@ -101,8 +102,9 @@ __all__ = [
     "invariant_error",
     "invariant_values",
     "observed_order",
+    "animate",
+    "plot",
     "plot_convergence",
-    "plot_diagnostics",
     "plot_solution",
     "InconsistentInitialValuesError",
     "IntegrateResult",
@@ -116,6 +118,7 @@ __all__ = [
     "ProblemDefinitionError",
     "ProblemFunctionError",
     "Result",
+    "STATS",
     "ShapeError",
     "SingularConstraintError",
     "Solution",

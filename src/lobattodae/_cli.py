@@ -370,7 +370,7 @@ def _cmd_run(ns) -> int:
     if sol.stats["recoveries"]:
         print(f"recovered steps (retried as substeps): {sol.stats['recoveries']}")
     if checkpoint:
-        more = " (continue with the same command and --resume)" if sol.status == Result.INTERRUPTED else ""
+        more = " (continue with the same command and --resume)" if sol.result == Result.INTERRUPTED else ""
         print(f"checkpoint: {checkpoint}{more}")
     print(f"Newton iterations per step: mean {np.mean(sol.stats['newton_iterations']) if len(sol.t) > 1 else 0:.2f}")
     for name, fn in ex.invariants.items():
@@ -429,7 +429,7 @@ def _print_lam_bookkeeping(sol, lam_start: str, warning: str | None) -> None:
 def _save_solution(sol, path: Path) -> None:
     if path.suffix.lower() == ".npz":
         np.savez(
-            path, t=sol.t, q=sol.q, p=sol.p, lam=sol.lam, status=int(sol.status),
+            path, t=sol.t, q=sol.q, p=sol.p, lam=sol.lam, status=int(sol.result),
             message=sol.message, h=np.nan if sol.stats["h"] is None else sol.stats["h"],
             constraint_residual=sol.stats["constraint_residual"],
             newton_iterations=sol.stats["newton_iterations"],

@@ -34,11 +34,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._errors import LobattoDAEInputError
 from ._tableau import LobattoPair, lagrange_basis
 
 __all__ = [
-    "DenseOutput", "DenseStep", "dense_size", "evaluate", "empty_dense_step", "integrated_basis", "joined",
-    "one_piece", "pack_dense", "span", "unpack_dense",
+    "LAYOUTS", "DenseOutput", "DenseStep", "dense_size", "evaluate", "empty_dense_step", "integrated_basis", "joined",
+    "one_piece", "pack_dense", "span", "stacked", "unpack_dense",
 ]
 
 
@@ -139,6 +140,15 @@ def _evaluate_many(pair: LobattoPair, steps: DenseStep, t):
 _evaluate_many_compiled = jax.jit(_evaluate_many, static_argnums=0)
 
 
+#: The layouts of :meth:`DenseOutput.__call__`: ours (a tuple of time-major arrays) and scipy's.
+LAYOUTS = ("tuple", "scipy")
+
+
+def stacked(q, p, lam) -> np.ndarray:
+    """``[q, p, λ]`` side by side along the last axis: (k, 2n + m) rows, or (2n + m,) for one time."""
+    return np.concatenate([np.asarray(q), np.asarray(p), np.asarray(lam)], axis=-1)
+
+
 class DenseOutput:
     """``sol(t) -> (q, p, lam)`` between the step points of a :func:`~lobattodae.solve` run
     (``dense_output=True``), from the stored steps' polynomials (q), (p), (λ).
@@ -162,7 +172,18 @@ class DenseOutput:
         self.t1 = float(self.steps.t0[-1, 0] + np.sum(self.steps.h[-1])) if self.n_steps else self.t0
         self._starts = np.asarray(self.steps.t0[:, 0])
 
-    def __call__(self, t):
+    def __call__(self, t, layout: str = "tuple"):
+        """``(q, p, lam)`` at ``t`` (``layout="tuple"``), or scipy's ``OdeSolution`` layout
+        (``layout="scipy"``): ``[q; p; λ]`` stacked, shape (2n + m,) for a scalar ``t`` and
+        (2n + m, k) for k times."""
+        if layout not in LAYOUTS:
+            raise LobattoDAEInputError(f"layout must be one of {LAYOUTS}; got {layout!r}.")
+        q, p, lam = self._values(t)
+        if layout == "scipy":
+            return stacked(q, p, lam).T
+        return q, p, lam
+
+    def _values(self, t):
         t_arr = np.asarray(t, dtype=np.float64)
         scalar = t_arr.ndim == 0
         t_arr = np.atleast_1d(t_arr)

@@ -26,7 +26,7 @@ import numpy as np
 from . import _checkpoint
 from ._errors import LobattoDAEInputError, NewtonFailure
 from ._controllers import ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
-from ._dense import DenseOutput, dense_size
+from ._dense import DenseOutput, dense_size, stacked
 from ._events import as_events
 from ._loop import CHUNK, Output, Record, State, init_host, run_host, start_host, steps_to_t_eval
 from ._results import Result
@@ -34,7 +34,7 @@ from ._doubling import for_error_control
 from ._stepper import LobattoIIIAIIIB
 from ._validate import check_float64, check_tolerance_attainable, validate_and_residual
 
-__all__ = ["Solution", "solve", "STATS"]
+__all__ = ["SCIPY_STATUS", "STATS", "Solution", "solve"]
 
 #: The keys of ``Solution.stats`` (the one place they are documented). "Rows" are the output
 #: rows after the initial one: step points (every ``save_every``-th) or ``t_eval`` times.
@@ -70,29 +70,40 @@ _EPS = float(np.finfo(np.float64).eps)
 
 @dataclass(frozen=True, eq=False)
 class Solution:
-    """The result of :func:`solve` (time-major NumPy arrays).
+    """The result of :func:`solve` (time-major NumPy arrays, with scipy's views beside them).
 
     Attributes
     ----------
-    t : ndarray, shape (N+1,)
+    t : ndarray, shape (k,)
         The initial time and the kept step points, or the ``t_eval`` times.
-    q, p : ndarray, shape (N+1, n)
-    lam : ndarray, shape (N+1, m)
+    q, p : ndarray, shape (k, n)
+    lam : ndarray, shape (k, m)
         The multiplier λ_k at t_k (λ_0 is the consistent initial value).
     success : bool
         The run reached the end of the interval or a terminal event.
-    status : Result
+    result : Result
         ``SUCCESSFUL``, ``EVENT`` (a terminal event) or the reason the run stopped early.
     message : str
     stats : dict
-        See :data:`STATS`. When the solve stopped early the arrays hold the computed prefix.
+        Counters and per-row diagnostics; the keys are documented in :data:`STATS`
+        (``lobattodae.STATS``). When the solve stopped early the arrays hold the computed prefix.
     t_events, q_events, p_events, lam_events : list of ndarray or None
         One array per event function: the times and states of its zeros (None without
         events).
     sol : DenseOutput or None
-        ``sol(t) -> (q, p, lam)`` between the step points (``dense_output=True``).
+        ``sol(t) -> (q, p, lam)`` between the step points (``dense_output=True``);
+        ``sol(t, layout="scipy")`` returns scipy's stacked ``(2n + m, k)`` layout.
     problem, method, args
         What was solved, for diagnostics.
+
+    The views in ``scipy.integrate.solve_ivp``'s layout and vocabulary: :attr:`y`,
+    :attr:`y_events`, :attr:`status`, :attr:`nfev`, :attr:`njev`, :attr:`nlu`.
+
+    Examples
+    --------
+    >>> sol = L.solve(problem, L.LobattoIIIAIIIB(stages=4), (0.0, 2.0), q0, p0)  # doctest: +SKIP
+    >>> sol.y.shape                       # (2n + m, k), as solve_ivp lays it out  # doctest: +SKIP
+    >>> sol.status, sol.result.name       # 0, 'SUCCESSFUL'  # doctest: +SKIP
     """
 
     t: np.ndarray
@@ -100,7 +111,7 @@ class Solution:
     p: np.ndarray
     lam: np.ndarray
     success: bool
-    status: Result
+    result: Result
     message: str
     stats: dict = field(repr=False)
     problem: Any = field(repr=False, default=None)
@@ -112,12 +123,52 @@ class Solution:
     lam_events: list | None = field(repr=False, default=None)
     sol: DenseOutput | None = field(repr=False, default=None)
 
+    # -- scipy's views -------------------------------------------------------------------------
+    @property
+    def status(self) -> int:
+        """scipy's status: 0 the end of the interval was reached, 1 a terminal event, −1 the run
+        stopped early (the reason is :attr:`result`)."""
+        return SCIPY_STATUS.get(self.result, -1)
+
+    @property
+    def y(self) -> np.ndarray:
+        """``[q; p; λ]`` stacked as ``solve_ivp`` lays out ``y``: shape (2n + m, k), one column per time."""
+        return stacked(self.q, self.p, self.lam).T
+
+    @property
+    def y_events(self) -> list | None:
+        """One (k_j, 2n + m) array per event function, the rows ``[q, p, λ]`` at its zeros (None
+        without events), as ``solve_ivp``'s ``y_events``."""
+        if self.t_events is None:
+            return None
+        return [stacked(q, p, lam) for q, p, lam in zip(self.q_events, self.p_events, self.lam_events)]
+
+    @property
+    def nfev(self) -> int:
+        """Evaluations of the right-hand side (f, g) at a stage point in Newton's iterations
+        (s per iteration: ``stats["n_newton"]`` × s)."""
+        return self.stats["n_newton"] * self.method.stages
+
+    @property
+    def njev(self) -> int:
+        """Jacobians of the stage equations (``stats["n_jacobians"]``)."""
+        return self.stats["n_jacobians"]
+
+    @property
+    def nlu(self) -> int:
+        """LU factorisations: one per Jacobian (``stats["n_jacobians"]``)."""
+        return self.stats["n_jacobians"]
+
     def __repr__(self) -> str:
         return (
-            f"Solution(success={self.success}, status={self.status.name}, n_steps={self.stats['n_steps']}, "
+            f"Solution(success={self.success}, result={self.result.name}, n_steps={self.stats['n_steps']}, "
             f"t=[{self.t[0]:g}, {self.t[-1]:g}], max constraint residual="
             f"{self.stats['max_constraint_residual']:.2e})"
         )
+
+
+#: ``Result`` → scipy's ``status``: 0 the end was reached, 1 a terminal event; every other result is −1.
+SCIPY_STATUS = {Result.SUCCESSFUL: 0, Result.EVENT: 1}
 
 
 # -- options ------------------------------------------------------------------------------------
@@ -549,7 +600,7 @@ def solve(
         Passed to the problem functions.
     throw : bool
         If True (default) a failed run raises :class:`NewtonFailure`; otherwise the computed
-        prefix is returned with ``success=False`` and the status.
+        prefix is returned with ``success=False`` and the reason in ``result``.
     project_initial : bool
         Replace ``p0`` by its least-squares projection onto the constraint
         {p : φ(t0, q0, p) = 0} (always, to round-off) instead of rejecting inconsistent values.
@@ -560,7 +611,7 @@ def solve(
         ``True`` shows a progress bar on stderr once the run has taken more than a second; a
         callable is called after each chunk as ``progress(steps_done, n_steps)`` (constant
         steps) or ``progress(t, t1)`` (adaptive). Ctrl-C returns the computed prefix with
-        status ``INTERRUPTED`` at the end of the chunk (a second Ctrl-C stops at once).
+        ``result`` ``INTERRUPTED`` at the end of the chunk (a second Ctrl-C stops at once).
     max_recoveries : int
         Constant steps only (off by default): a step whose Newton iteration fails is retried
         as 2, 4, 8 or 16 substeps, at most this many times per solve; ``stats["recoveries"]``
@@ -925,19 +976,19 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
     state = run.state
     # Non-finite values reported as success would be a bug upstream; never let them through.
     finite = np.all(np.isfinite(out.q), axis=1) & np.all(np.isfinite(out.p), axis=1) & np.all(np.isfinite(out.lam), axis=1)
-    failed_step, status = None, Result.SUCCESSFUL
+    failed_step, result = None, Result.SUCCESSFUL
     if not np.all(finite):
         n_ok = int(np.flatnonzero(~finite)[0])
-        failed_step, status = n_ok, Result.NONFINITE
+        failed_step, result = n_ok, Result.NONFINITE
         out = Record(*(x[:n_ok] for x in out))
     elif failed or not Result(int(state.result)).success:  # failed here, or in the run resumed from
-        failed_step, status = int(state.n_accepted), Result(int(state.result))
+        failed_step, result = int(state.n_accepted), Result(int(state.result))
     elif not finished and _capped(opt, state):
-        status = Result.MAX_STEPS
+        result = Result.MAX_STEPS
     elif not finished:
-        status = Result.INTERRUPTED
+        result = Result.INTERRUPTED
     elif int(state.result) == Result.EVENT:
-        status = Result.EVENT
+        result = Result.EVENT
     with_initial = opt.t_eval is None
     t = np.concatenate([[opt.t0], out.t]) if with_initial else out.t
 
@@ -973,19 +1024,19 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
     if opt.output.dense:
         (dense,) = run.dense.all()
         sol = DenseOutput(method.pair, dense, method.pieces, q0.shape[-1], lam0.shape[-1], opt.t0)
-    success = status.success and failed_step is None
-    message = status.message
+    success = result.success and failed_step is None
+    message = result.message
     if failed_step is not None:
         tf, hf = (float(x) for x in opt.controller.proposal(state.controller))
         tried = f" (after {run.recoveries} recovered steps; max_recoveries={opt.max_recoveries})" if opt.max_recoveries else ""
-        message = f"Step {failed_step} (t = {tf:.6g}, h = {hf:.3g}) failed{tried}: {status.message}"
+        message = f"Step {failed_step} (t = {tf:.6g}, h = {hf:.3g}) failed{tried}: {result.message}"
         if throw:
-            raise NewtonFailure(message, step=failed_step, t=tf, reason=status.name.lower())
-    elif status == Result.MAX_STEPS:
+            raise NewtonFailure(message, step=failed_step, t=tf, reason=result.name.lower())
+    elif result == Result.MAX_STEPS:
         t_now = float(opt.controller.time(state.controller))
         message = (f"The step limit max_steps={opt.max_steps:,} was reached at t = {t_now:.6g}, before the end of the "
                    "interval; the computed prefix is returned. Raise max_steps, or loosen the tolerances.")
-    elif status == Result.INTERRUPTED:
+    elif result == Result.INTERRUPTED:
         t_now = float(opt.controller.time(state.controller))
         of = f" of {opt.n}" if opt.n is not None else ""
         message = f"Interrupted after {int(state.n_accepted)}{of} steps (t = {t_now:.6g}); the computed prefix is returned."
@@ -1002,7 +1053,7 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
         warnings.warn(note, RuntimeWarning, stacklevel=3)
     return Solution(
         t, column(q0, out.q), column(p0, out.p), column(lam0, out.lam),
-        bool(success), status, message, stats, problem, method, args, *events, sol,
+        bool(success), result, message, stats, problem, method, args, *events, sol,
     )
 
 
