@@ -88,3 +88,28 @@ def test_dense_momenta_satisfy_the_constraint_at_the_nodes(sleigh, phi_along):
 
     assert phi_max(L.lobatto_pair(3).c) < 1e-14
     assert phi_max([0.25, 0.75]) > 1e-8  # between the nodes: the interpolation error (measured 2.5e-6)
+
+
+def test_projected_dense_output_satisfies_the_constraints_at_order_s(sleigh, phi_along):
+    """``sol(t, project=True)``: φ to round-off between the nodes (where the interpolant misses
+    it by ~1e-6), and p and λ still of order s against the closed form (the projection moves them
+    by the interpolation error of q, order s: p, of order s + 1 on the sleigh, drops to s)."""
+    method = L.LobattoIIIAIIIB(stages=3, lam_start="consistent")
+    errors = []
+    for n in (16, 32):
+        sol = L.solve(sleigh.problem, method, sleigh.t_span, sleigh.q0, sleigh.p0, args=sleigh.args, n_steps=n,
+                      dense_output=True)
+        t = _inside(sol.t, [0.25, 0.75])
+        q, p, lam = sol.sol(t)
+        qp, pp, lamp = sol.sol(t, project=True)
+        np.testing.assert_array_equal(qp, q)  # no position constraint: q is left alone
+        assert np.abs(np.asarray(phi_along(jnp.asarray(t), jnp.asarray(q), jnp.asarray(p)))).max() > 1e-8
+        assert np.abs(np.asarray(phi_along(jnp.asarray(t), jnp.asarray(qp), jnp.asarray(pp)))).max() < 1e-14
+        qe, pe, le = sleigh.exact(t)
+        errors.append((np.abs(pp - pe).max(), np.abs(lamp - le).max()))
+    orders = np.log2(np.asarray(errors[0]) / np.asarray(errors[1]))
+    assert np.all(orders > 3 - ORDER_TOL), (orders, errors)
+    stacked = sol.sol(t[3], layout="scipy", project=True)
+    np.testing.assert_allclose(stacked, np.concatenate([qp[3], pp[3], lamp[3]]), rtol=0, atol=1e-15)
+    with pytest.raises(L.LobattoDAEInputError, match="project must be True or False"):
+        sol.sol(t, project="yes")

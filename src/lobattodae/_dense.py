@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import LobattoDAEInputError
+from ._projection import project_row
 from ._tableau import LobattoPair, lagrange_basis
 
 __all__ = [
@@ -154,51 +155,77 @@ class DenseOutput:
     (``dense_output=True``), from the stored steps' polynomials (q), (p), (λ).
 
     ``t`` is a scalar (1-D results) or a 1-D array (time-major results); it must lie in the
-    integrated interval.
+    integrated interval. ``sol(t, layout="scipy")`` returns scipy's layout instead.
 
     Accuracy: between step points q, p and λ converge with order s (the step points
     themselves with 2s − 2), and ‖φ‖ is of the interpolation error there, not at round-off.
     At tight tolerances the values between steps are therefore orders of magnitude less
     accurate than the steps (sleigh, rtol 1e-12, s = 5: 2.0e-10 between steps where the
     steps are at 1e-15). Where values at given times must be as accurate as the run, ask for
-    them as ``t_eval`` rows (under error control the steps end on them).
+    them as ``t_eval`` rows (under error control the steps end on them). Where they must
+    satisfy the constraints, ``sol(t, project=True)`` moves them onto ψ = 0, φ = 0 and the
+    consistent λ (:func:`~lobattodae._projection.project_row`; the order stays s).
     """
 
-    def __init__(self, pair: LobattoPair, packed: np.ndarray, pieces: int, n: int, m: int, t0: float):
+    def __init__(self, pair: LobattoPair, packed: np.ndarray, pieces: int, n: int, m: int, t0: float,
+                 problem=None, args=None):
         self.pair = pair
         self.steps = unpack_dense(np.asarray(packed), pieces, pair.s, n, m)
         self.n_steps = len(self.steps.t0)
         self.t0 = float(t0)
         self.t1 = float(self.steps.t0[-1, 0] + np.sum(self.steps.h[-1])) if self.n_steps else self.t0
         self._starts = np.asarray(self.steps.t0[:, 0])
+        self.problem, self.args = problem, args
 
-    def __call__(self, t, layout: str = "tuple"):
-        """``(q, p, lam)`` at ``t`` (``layout="tuple"``), or scipy's ``OdeSolution`` layout
-        (``layout="scipy"``): ``[q; p; λ]`` stacked, shape (2n + m,) for a scalar ``t`` and
-        (2n + m, k) for k times."""
+    def __call__(self, t, layout: str = "tuple", project: bool = False):
+        """The dense output at ``t``.
+
+        Parameters
+        ----------
+        t : float or (k,) array
+            Times in the integrated interval.
+        layout : {"tuple", "scipy"}
+            ``"tuple"``: ``(q, p, lam)``, shapes (n,), (n,), (m,) for a scalar ``t`` and
+            (k, n), (k, n), (k, m) for k times. ``"scipy"``: scipy's ``OdeSolution`` layout,
+            ``[q; p; λ]`` stacked, shape (2n + m,) or (2n + m, k).
+        project : bool
+            Move the values onto the constraints (ψ = 0 where the problem has position
+            constraints, φ = 0, λ consistent) instead of returning the interpolant itself.
+        """
         if layout not in LAYOUTS:
             raise LobattoDAEInputError(f"layout must be one of {LAYOUTS}; got {layout!r}.")
-        q, p, lam = self._values(t)
+        if not isinstance(project, (bool, np.bool_)):
+            raise LobattoDAEInputError(f"project must be True or False; got {project!r}.")
+        t_arr = self._times(t)
+        q, p, lam = _evaluate_many_compiled(self.pair, self._steps_at(t_arr), jnp.asarray(t_arr))
+        if project:
+            if self.problem is None:
+                raise LobattoDAEInputError("project=True needs the problem: use the DenseOutput of a Solution.")
+            q, p, lam = _project_many_compiled(self.problem, jnp.asarray(t_arr), q, p, lam, self.args)
+        q, p, lam = (np.asarray(x) for x in (q, p, lam))
+        if np.ndim(t) == 0:
+            q, p, lam = q[0], p[0], lam[0]
         if layout == "scipy":
             return stacked(q, p, lam).T
         return q, p, lam
 
-    def _values(self, t):
-        t_arr = np.asarray(t, dtype=np.float64)
-        scalar = t_arr.ndim == 0
-        t_arr = np.atleast_1d(t_arr)
+    def _times(self, t) -> np.ndarray:
+        t_arr = np.atleast_1d(np.asarray(t, dtype=np.float64))
         if t_arr.ndim != 1:
-            raise ValueError(f"t must be a scalar or a 1-D array; got shape {t_arr.shape}.")
+            raise LobattoDAEInputError(f"t must be a scalar or a 1-D array; got shape {t_arr.shape}.")
         if not self.n_steps:
-            raise ValueError("no step was taken; there is no dense output to evaluate.")
+            raise LobattoDAEInputError("no step was taken; there is no dense output to evaluate.")
         lo, hi = min(self.t0, self.t1), max(self.t0, self.t1)
         if np.any(~np.isfinite(t_arr)) or np.any(t_arr < lo) or np.any(t_arr > hi):
-            raise ValueError(f"t must lie in the integrated interval [{lo:g}, {hi:g}].")
+            raise LobattoDAEInputError(f"t must lie in the integrated interval [{lo:g}, {hi:g}].")
+        return t_arr
+
+    def _steps_at(self, t_arr: np.ndarray) -> DenseStep:
+        """The stored step that covers each time."""
         forward = self.t1 >= self.t0
         keys = self._starts if forward else -self._starts
         idx = np.clip(np.searchsorted(keys, t_arr if forward else -t_arr, side="right") - 1, 0, self.n_steps - 1)
-        steps = DenseStep(*(jnp.asarray(np.asarray(x)[idx]) for x in self.steps))
-        q, p, lam = (np.asarray(x) for x in _evaluate_many_compiled(self.pair, steps, jnp.asarray(t_arr)))
-        if scalar:
-            return q[0], p[0], lam[0]
-        return q, p, lam
+        return DenseStep(*(jnp.asarray(np.asarray(x)[idx]) for x in self.steps))
+
+
+_project_many_compiled = jax.jit(jax.vmap(project_row, in_axes=(None, 0, 0, 0, 0, None)), static_argnums=0)

@@ -49,8 +49,10 @@ import jax
 import jax.numpy as jnp
 
 from ._linalg import small_solve, value_and_jacobian
+from ._problem import consistent_lambda
 
-__all__ = ["project_positions", "project_momenta_impulse", "project_step_end", "POSITION_NEWTON_ITERATIONS"]
+__all__ = ["project_positions", "project_momenta_impulse", "project_row", "project_step_end",
+           "POSITION_NEWTON_ITERATIONS"]
 
 #: Newton steps for ``ψ(t_1, q̃_1 + D κ) = 0`` (quadratic convergence from an O(h^(2s-1)) start).
 POSITION_NEWTON_ITERATIONS = 3
@@ -87,3 +89,26 @@ def project_step_end(problem, t, q, p, lam, args):
     ``ψ(t, q_1) = 0`` and ``φ(t, q_1, p_1) = 0`` to round-off (see the module docstring)."""
     q1 = project_positions(problem, t, q, p, args)
     return q1, project_momenta_impulse(problem, t, q1, p, lam, args)
+
+
+#: Impulse steps onto ``φ = 0`` for a row: the first is exact for φ affine in p (every mechanical
+#: system), the second removes its round-off, or the nonlinearity of a general φ.
+ROW_MOMENTUM_STEPS = 2
+
+
+def project_row(problem, t, q, p, lam, args):
+    r"""A state between step points moved onto the constraints: ``ψ(t, q) = 0`` (the position
+    constraints, when the problem has them, step 1), ``φ(t, q, p) = 0`` (ROW_MOMENTUM_STEPS
+    impulse steps, step 2) and λ the consistent multiplier, the root of the hidden constraint
+    ``D_tφ + D_qφ f + D_pφ g = 0`` (:func:`~lobattodae.consistent_lambda`).
+
+    For dense-output values (order s between step points, ``φ`` violated by the interpolation
+    error): the projection moves them by that error, so they keep order s (a component that
+    was more accurate, such as p of order s + 1 on the sleigh, follows q down to order s) and
+    the constraints hold to round-off.
+    """
+    if getattr(problem, "position_constraint", None) is not None:
+        q = project_positions(problem, t, q, p, args)
+    for _ in range(ROW_MOMENTUM_STEPS):  # unrolled: a fixed, small number of steps
+        p = project_momenta_impulse(problem, t, q, p, lam, args)
+    return q, p, consistent_lambda(problem, t, q, p, lam, args)

@@ -621,7 +621,7 @@ def solve(
         steps (at chunk boundaries), at the end, and on Ctrl-C. Each save writes only the
         rows since the previous one, appended as a segment file in the directory
         ``<checkpoint>.rows/`` next to it, and rewrites the small file itself (the state),
-        atomically (format: :mod:`lobattodae._checkpoint`): bytes written grow with the rows
+        atomically (a versioned format): bytes written grow with the rows
         kept (``save_every``), not with the number of saves. Keep (move, copy, delete) the
         file and its ``.rows`` directory together. Its directory must exist. A run without
         ``resume`` replaces an existing checkpoint (its segments are removed at the first save).
@@ -1023,7 +1023,7 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
     sol = None
     if opt.output.dense:
         (dense,) = run.dense.all()
-        sol = DenseOutput(method.pair, dense, method.pieces, q0.shape[-1], lam0.shape[-1], opt.t0)
+        sol = DenseOutput(method.pair, dense, method.pieces, q0.shape[-1], lam0.shape[-1], opt.t0, problem, args)
     success = result.success and failed_step is None
     message = result.message
     if failed_step is not None:
