@@ -679,3 +679,213 @@ def test_run_newton_failure_nonzero_exit_with_message(tmp_path, capsys):
     with np.load(f) as z:
         assert int(z["status"]) != 0
         assert z["q"].shape[0] == 1 and np.all(np.isfinite(z["q"]))
+
+
+# ------------------------------------------------------------------------- run --model
+MODEL_SOURCE = '''
+from lobattodae.examples import get_example
+
+EX = get_example("particle")
+NOT_CALLABLE = 3
+
+
+def as_dict():
+    return {"problem": EX.problem, "q0": EX.q0, "p0": EX.p0, "args": EX.args, "t_span": EX.t_span,
+            "name": "my particle", "draw": lambda t, q, args: {"dot": [q[0], q[2]]}}
+
+
+def as_tuple():
+    return EX.problem, list(EX.q0), list(EX.p0), EX.args
+
+
+def as_example():
+    return EX
+
+
+def returns_int():
+    return 42
+
+
+def returns_pair():
+    return EX.problem, EX.q0
+
+
+def dict_without_q0():
+    return {"problem": EX.problem, "p0": EX.p0, "t_span": (0.0, 1.0)}
+
+
+def dict_with_typo():
+    return {"problem": EX.problem, "q0": EX.q0, "p0": EX.p0, "tspan": (0.0, 1.0)}
+
+
+def not_a_problem():
+    return "sleigh", EX.q0, EX.p0
+
+
+def q0_matrix():
+    return EX.problem, [[0.0, 0.0, 0.0]], EX.p0
+
+
+def raises():
+    raise ValueError("boom: bad parameter")
+'''
+
+
+@pytest.fixture
+def model_module(tmp_path, monkeypatch):
+    """A module of model factories in a temporary directory, the current directory of the test
+    (``lobattodae run --model NAME:FACTORY`` imports it from there, as ``python -m`` would)."""
+    import uuid
+
+    name = f"usermodels_{uuid.uuid4().hex[:10]}"
+    (tmp_path / f"{name}.py").write_text(MODEL_SOURCE)
+    (tmp_path / f"{name}_broken.py").write_text("import missing_dependency_xyz\n")
+    (tmp_path / f"{name}_syntax.py").write_text("def f(:\n")
+    monkeypatch.chdir(tmp_path)
+    yield name
+    for key in [k for k in sys.modules if k.startswith(name)]:
+        del sys.modules[key]
+    assert str(tmp_path) not in sys.path  # the CLI took the directory off sys.path again
+
+
+def test_run_model_dict_factory_plot_and_animation(model_module, particle_direct, tmp_path, capsys):
+    _, sol = particle_direct
+    f, png, gif = tmp_path / "sol.npz", tmp_path / "diag.png", tmp_path / "traj.gif"
+    code, out, err = _main(["run", "--model", f"{model_module}:as_dict", "--stages", RUN_STAGES, "--n-steps",
+                            RUN_STEPS, "--no-progress", "--save", f, "--plot", png, "--animate", gif, "--frames", 6],
+                           capsys)
+    assert code == 0, err
+    assert "steps: 50 of 50" in out and "max |energy(t) - energy(0)|" in out  # the problem's H by default
+    with np.load(f) as z:  # the same run as the example's
+        for key in ("t", "q", "p", "lam"):
+            np.testing.assert_allclose(z[key], getattr(sol, key), rtol=0, atol=1e-12, err_msg=key)
+    assert _is_png(png) and f"wrote {png}" in out
+    from PIL import Image
+
+    with Image.open(gif) as im:  # the factory's own drawing, 6 frames
+        assert im.n_frames == 6
+    assert f"wrote {gif}" in out
+
+
+def test_run_model_tuple_needs_t1_file_path_and_example(model_module, particle_direct, tmp_path, capsys):
+    _, sol = particle_direct
+    f = tmp_path / "sol.npz"
+    base = ["run", "--stages", RUN_STAGES, "--n-steps", RUN_STEPS, "--no-progress", "--save", f]
+    code, out, err = _main(base + ["--model", f"{model_module}:as_tuple", "--t1", "2"], capsys)
+    assert code == 0, err
+    with np.load(f) as z:
+        np.testing.assert_allclose(z["q"], sol.q, rtol=0, atol=1e-12)
+    # a tuple has no t_span: --t1 is needed, and the message says so (before any work)
+    code, out, err = _main(["run", "--model", f"{model_module}:as_tuple", "--n-steps", "5"], capsys)
+    assert code == 2 and "gives no t_span; pass --t1" in err and out == ""
+    # FILE.py:FACTORY, returning an Example
+    code, out, err = _main(base + ["--model", f"./{model_module}.py:as_example"], capsys)
+    assert code == 0, err
+    with np.load(f) as z:
+        np.testing.assert_allclose(z["q"], sol.q, rtol=0, atol=1e-12)
+
+
+def test_run_model_with_checkpoint_and_resume(model_module, particle_direct, tmp_path, capsys):
+    _, sol = particle_direct
+    ck, f1, f2 = tmp_path / "run.npz", tmp_path / "a.npz", tmp_path / "b.npz"
+    base = ["run", "--model", f"{model_module}:as_dict", "--stages", RUN_STAGES, "--n-steps", RUN_STEPS,
+            "--no-progress", "--checkpoint", ck, "--checkpoint-every", 20]
+    code, out, err = _main(base + ["--save", f1], capsys)
+    assert code == 0, err
+    assert ck.exists() and f"checkpoint: {ck}" in out
+    code, out, err = _main(base + ["--resume", "--save", f2], capsys)
+    assert code == 0, err
+    with np.load(f1) as a, np.load(f2) as b:
+        np.testing.assert_array_equal(a["q"], b["q"])
+        np.testing.assert_allclose(a["q"], sol.q, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "spec, needles",
+    [
+        ("nocolon", ["--model must be MODULE:FACTORY", "got 'nocolon'"]),
+        ("{m}:", ["--model must be MODULE:FACTORY"]),
+        ("{m}:not-a-name", ["--model must be MODULE:FACTORY"]),
+        ("no_such_module_xyz:f", ["cannot import 'no_such_module_xyz'", "ModuleNotFoundError",
+                                  "No module named 'no_such_module_xyz'", "from the directory that contains it"]),
+        ("{m}_broken:f", ["cannot import '{m}_broken'", "No module named 'missing_dependency_xyz'"]),
+        ("{m}_syntax:f", ["cannot import '{m}_syntax'", "SyntaxError"]),
+        ("missing_file.py:f", ["no such file 'missing_file.py'"]),
+        ("{m}:nope", ["has no attribute 'nope'", "its functions:", "as_dict"]),
+        ("{m}:NOT_CALLABLE", ["'NOT_CALLABLE' is a int, not a function"]),
+        ("{m}:raises", ["the factory raises() raised ValueError: boom: bad parameter"]),
+        ("{m}:returns_int", ["the factory returned int 42", "return (problem, q0, p0)"]),
+        ("{m}:returns_pair", ["the factory returned a tuple of 2"]),
+        ("{m}:dict_without_q0", ["a dict without 'q0'"]),
+        ("{m}:dict_with_typo", ["unknown keys ['tspan']"]),
+        ("{m}:not_a_problem", ["str 'sleigh' where the problem goes"]),
+        ("{m}:q0_matrix", ["q0 = list [[0.0, 0.0, 0.0]]", "1-D array"]),
+    ],
+)
+def test_run_model_errors_one_line_exit_2(spec, needles, model_module, monkeypatch, capsys):
+    _forbid_integration(monkeypatch)
+    spec = spec.format(m=model_module)
+    code, out, err = _main(["run", "--model", spec, "--n-steps", "5", "--t1", "1"], capsys)
+    assert code == 2, (out, err)
+    assert out == ""
+    assert err.startswith("lobattodae: error: --model"), err
+    assert err.count("\n") == 1, err  # one line
+    for needle in needles:
+        assert needle.format(m=model_module) in err, (needle, err)
+
+
+def test_run_example_and_model_are_exclusive(capsys):
+    code, out, err = _main(["run", "--example", "particle", "--model", "m:f", "--n-steps", "5"], capsys)
+    assert code == 2 and "not allowed with argument" in err
+
+
+@pytest.mark.parametrize(
+    "extra, needles",
+    [
+        (["--animate", "{d}/a.avi"], ["--animate", ".gif or .mp4"]),
+        (["--frames", "10"], ["--frames needs --animate"]),
+        (["--animate", "{d}/a.gif", "--frames", "1"], ["--frames must be >= 2"]),
+    ]
+    + ([] if __import__("matplotlib.animation").animation.writers.is_available("ffmpeg")
+       else [(["--animate", "{d}/a.mp4"], ["needs ffmpeg", ".gif"])]),
+)
+def test_run_animation_options_checked_before_any_work(extra, needles, tmp_path, monkeypatch, capsys):
+    _forbid_integration(monkeypatch)
+    argv = ["run", "--example", "particle", "--n-steps", "5"] + [a.format(d=tmp_path) for a in extra]
+    code, out, err = _main(argv, capsys)
+    assert code == 2, (out, err)
+    for needle in needles:
+        assert needle in err, (needle, err)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_run_model_from_a_mechanics_model(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("sympy")
+    from lobattodae import mechanics
+
+    (tmp_path / "mech_models_cli.py").write_text(
+        "from lobattodae import mechanics\n"
+        "def sleigh():\n"
+        "    return {'model': mechanics.systems.chaplygin_sleigh(), 'q0': [0.0, 0.0, 0.0], 'qdot0': [0.0, 1.0, 1.0],\n"
+        "            'args': {'m': 1.0, 'I': 1.0, 'a': 1.0}, 't_span': (0.0, 1.0)}\n"
+        "def bare():\n"
+        "    return mechanics.systems.chaplygin_sleigh()\n"
+    )
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delitem(sys.modules, "mech_models_cli", raising=False)
+    try:
+        f = tmp_path / "sol.npz"
+        code, out, err = _main(["run", "--model", "mech_models_cli:sleigh", "--stages", "3", "--n-steps", "10",
+                                "--no-progress", "--save", f], capsys)
+        assert code == 0, err
+        model = mechanics.systems.chaplygin_sleigh()
+        args = model.args(m=1.0, I=1.0, a=1.0)
+        p0 = model.momenta(0.0, [0.0, 0.0, 0.0], [0.0, 1.0, 1.0], args)  # qdot0 -> p0 as the CLI does
+        sol = L.solve(model.problem, _run_method(3), (0.0, 1.0), [0.0, 0.0, 0.0], p0, args=args, n_steps=10,
+                      chunk_size=RUN_CHUNK)
+        with np.load(f) as z:
+            np.testing.assert_allclose(z["q"], sol.q, rtol=0, atol=1e-12)
+        code, out, err = _main(["run", "--model", "mech_models_cli:bare", "--n-steps", "10"], capsys)
+        assert code == 2 and "a mechanics model (Chaplygin sleigh (Lagrangian)) without initial values" in err
+    finally:
+        sys.modules.pop("mech_models_cli", None)
