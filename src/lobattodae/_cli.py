@@ -376,7 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rtol", type=_positive_float, default=None,
                    help="adaptive steps (the default without --dt/--n-steps): relative tolerance (1e-8)")
     p.add_argument("--atol", type=_positive_float, default=None, help="adaptive steps: absolute tolerance (1e-10)")
-    p.add_argument("--t-eval", type=float, nargs="+", default=None, help="output times (from the dense output)")
+    p.add_argument("--t-eval", type=float, nargs="+", default=None, help="output times (adaptive steps end on them; constant steps interpolate)")
     p.add_argument("--save-every", type=_positive_int, default=None, help="keep every k-th step point")
     p.add_argument("--t1", type=_positive_float, default=None,
                    help="final time (default: the example's, or the t_span of --model's factory)")

@@ -51,7 +51,13 @@ def set_cpu_threads(n: int = 1) -> None:
 
     Call it before the process's first JAX computation (``import jax`` and ``import
     lobattodae`` are fine). ``n = 1`` is the fastest setting for single trajectories and
-    ``vmap`` batches on CPU; see the module docstring for what it costs elsewhere.
+    ``vmap`` batches on CPU. The setting is process-wide: it slows large dense computations
+    elsewhere in the same process (``docs/getting-started.md``).
+
+    Parameters
+    ----------
+    n : int
+        Threads of XLA's CPU pool (default 1).
 
     Raises
     ------

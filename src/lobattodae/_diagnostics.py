@@ -22,18 +22,56 @@ def _over_trajectory(fn, sol) -> np.ndarray:
 
 
 def invariant_values(sol, invariant: Callable[..., Any]) -> np.ndarray:
-    """``I(t_k, q_k, p_k, args)`` along the solution, shape (N+1,). Vectorised with ``vmap``."""
+    """``I(t_k, q_k, p_k, args)`` along the solution, shape (N+1,). Vectorised with ``vmap``.
+
+    Parameters
+    ----------
+    sol : Solution
+    invariant : callable
+        ``I(t, q, p, args) -> scalar``, written with ``jax.numpy``.
+
+    Returns
+    -------
+    ndarray, shape (N+1,)
+        One value per row of ``sol``.
+    """
     return _over_trajectory(lambda t, q, p: invariant(t, q, p, sol.args), sol)
 
 
 def invariant_error(sol, invariant: Callable[..., Any]) -> np.ndarray:
-    """``I(t_k) - I(t_0)`` along the solution."""
+    """``I(t_k) - I(t_0)`` along the solution.
+
+    Parameters
+    ----------
+    sol : Solution
+    invariant : callable
+        ``I(t, q, p, args) -> scalar``.
+
+    Returns
+    -------
+    ndarray, shape (N+1,)
+    """
     v = invariant_values(sol, invariant)
     return v - v[0]
 
 
 def energy_error(sol) -> np.ndarray:
-    """``H(t_k, q_k, p_k) - H(t_0, q_0, p_0)`` for a Hamiltonian problem."""
+    """``H(t_k, q_k, p_k) - H(t_0, q_0, p_0)`` for a Hamiltonian problem.
+
+    Parameters
+    ----------
+    sol : Solution
+        Of a :class:`NonholonomicSystem` or :class:`MechanicalSystem`.
+
+    Returns
+    -------
+    ndarray, shape (N+1,)
+
+    Raises
+    ------
+    TypeError
+        The problem has no Hamiltonian (use :func:`invariant_error` with your energy).
+    """
     problem = sol.problem
     if not hasattr(problem, "hamiltonian"):
         raise TypeError(
@@ -44,6 +82,16 @@ def energy_error(sol) -> np.ndarray:
 
 
 def constraint_residual(sol) -> np.ndarray:
-    """``‖φ(t_k, q_k, p_k)‖∞`` recomputed along the solution, shape (N+1,)."""
+    """``‖φ(t_k, q_k, p_k)‖∞`` recomputed along the solution, shape (N+1,).
+
+    Parameters
+    ----------
+    sol : Solution
+
+    Returns
+    -------
+    ndarray, shape (N+1,)
+        One value per row (``sol.stats["constraint_residual"]`` has the same, from the run).
+    """
     problem = sol.problem
     return _over_trajectory(lambda t, q, p: jnp.max(jnp.abs(problem.phi(t, q, p, sol.args))), sol)

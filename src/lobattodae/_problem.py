@@ -72,7 +72,7 @@ class PartitionedDAE:
     Holonomic position constraints :math:`ψ(t, q) = 0` (k of them) whose velocity form
     :math:`ψ_q f + ψ_t = 0` is among the rows of φ can be given as ``position_constraint``:
     the integrator then projects every step's end point onto :math:`ψ = 0` and back onto
-    :math:`φ = 0` (see :mod:`lobattodae._projection`), so that both hold to round-off at every
+    :math:`φ = 0` (``docs/mechanics.md``, holonomic constraints), so that both hold to round-off at every
     step point, with the method's orders unchanged.
 
     Parameters
@@ -248,6 +248,19 @@ def hidden_constraint(problem, t, q, p, lam, args=None):
     r"""The hidden constraint ``d/dt φ = φ_t + φ_q f + φ_p g(λ)`` at ``(t, q, p, λ)``.
 
     Consistent initial values satisfy ``φ = 0`` and this ``= 0``.
+
+    Parameters
+    ----------
+    problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+    t : float
+    q, p : jax.Array, shape (n,)
+    lam : jax.Array, shape (m,)
+    args : pytree, optional
+
+    Returns
+    -------
+    jax.Array, shape (m,)
+        The residual ``d/dt φ``.
     """
     t = jnp.asarray(t, dtype=q.dtype)
     dq, dp = vector_field(problem, t, q, p, lam, args)
@@ -269,6 +282,23 @@ def consistent_lambda(problem, t, q, p, lam_guess, args=None, iterations=3):
 
     ``g`` is affine in λ for every nonholonomic system, so one iteration is exact there;
     ``iterations`` Newton steps are taken for general problems.
+
+    Parameters
+    ----------
+    problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+    t : float
+    q, p : jax.Array, shape (n,)
+        A consistent state, ``φ(t, q, p) = 0``.
+    lam_guess : jax.Array, shape (m,)
+        Newton's starting value (any value, e.g. zeros, for nonholonomic systems).
+    args : pytree, optional
+    iterations : int
+        Newton steps (static).
+
+    Returns
+    -------
+    jax.Array, shape (m,)
+        λ with ``hidden_constraint(problem, t, q, p, λ, args) = 0``.
     """
 
     def update(lam):
@@ -300,6 +330,20 @@ def project_momenta(problem, t, q, p, args=None, iterations=2):
     removes its round-off. With :func:`consistent_lambda` it completes initial values computed
     from parameters, ``p0 = project_momenta(...)``, ``λ0 = consistent_lambda(...)``, so that a
     loss can be differentiated from physical parameters to the final state.
+
+    Parameters
+    ----------
+    problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+    t : float
+    q, p : array_like, shape (n,)
+    args : pytree, optional
+    iterations : int
+        Gauss–Newton steps (static).
+
+    Returns
+    -------
+    jax.Array, shape (n,)
+        The momenta closest to ``p`` with ``φ(t, q, ·) = 0``.
     """
     t = jnp.asarray(t, jnp.result_type(p))
     return jax.lax.fori_loop(0, iterations, lambda _, pp: projection_step(problem, t, q, pp, args)[0], jnp.asarray(p))

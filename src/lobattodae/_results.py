@@ -12,7 +12,32 @@ __all__ = ["Result"]
 
 
 class Result(enum.IntEnum):
-    """Outcome of a step (and of a solve: the first non-successful step's code)."""
+    """Outcome of a step (and of a solve: the first non-successful step's code).
+
+    An ``IntEnum``: the codes live inside compiled loops as integers (``IntegrateResult.status``)
+    and ``Solution.result`` holds the member; ``member.message`` is the sentence users see.
+
+    Attributes
+    ----------
+    SUCCESSFUL : 0
+        The end of the integration interval was reached.
+    MAX_ITERATIONS : 1
+        Newton's method did not converge within ``max_iterations``.
+    DIVERGED : 2
+        Newton's method stopped contracting.
+    NONFINITE : 3
+        NaN or inf in the stage equations or their Jacobian.
+    INTERRUPTED : 4
+        Ctrl-C (or SIGTERM in the command line); the computed prefix is returned.
+    STEP_SIZE_TOO_SMALL : 5
+        Adaptive steps fell below 1e-14·|t|.
+    MAX_STEPS : 6
+        The step limit ``max_steps`` was reached before the end of the interval.
+    EVENT : 7
+        A terminal event ended the run (a success).
+    EVENT_NOT_FINITE : 8
+        An event function returned NaN or inf; the run stopped at that step point.
+    """
 
     SUCCESSFUL = 0
     MAX_ITERATIONS = 1

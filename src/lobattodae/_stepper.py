@@ -94,15 +94,15 @@ class StepInfo(NamedTuple):
 class LobattoIIIAIIIB:
     r"""The s-stage Lobatto-type IIIA-IIIB partitioned Runge-Kutta method for index-2 DAEs.
 
-    One step solves the stage equations written out in :mod:`lobattodae._stage_equations`
-    (Martín de Diego & Sato, the scheme of the paper): IIIA for q and for the constraint
+    One step solves the stage equations of the paper's scheme (Martín de Diego & Sato;
+    written out in ``docs/theory/scheme.md``): IIIA for q and for the constraint
     momenta ``p̃_i``, IIIB for ``P_i``, ``φ(t_i, Q_i, p̃_i) = 0`` for i = 2..s, so that
     ``φ(t_1, q_1, p_1) = 0`` at every step point. Global orders on a fixed interval (the
     paper's Corollary): q, p ``h^(2s-2)``; λ ``h^s`` for even s and ``h^(s-1)`` for odd s.
 
     A problem with holonomic constraints ``position_constraint = ψ`` has every step's end
     point projected onto ``ψ(t_1, q_1) = 0`` and ``φ(t_1, q_1, p_1) = 0``
-    (:mod:`lobattodae._projection`): both hold to round-off, the orders of q and p are kept,
+    (a projection after the step): both hold to round-off, the orders of q and p are kept,
     but the step is then not symmetric. Without ψ nothing is added to the step.
 
     Newton works on ``Z_j = h Λ_j`` with a structured Jacobian whose inverse is reused across

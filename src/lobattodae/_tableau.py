@@ -376,8 +376,8 @@ class LobattoPair:
         ``b̂`` is the interpolatory rule on the first s-1 nodes (``b̂_s = 0``), exact for
         polynomials of degree ``s - 2``. So ``e`` annihilates them, ``Σ_j e_j c_j^(k-1) = 0`` for
         k = 1..s-1, and ``h Σ_j e_j V_j`` is a scaled (s-1)-th divided difference of the stage
-        slopes: ``O(h^s)``, the local error of the embedded order-(s-1) formula (see
-        :mod:`lobattodae._stepper` for how the step-size controller uses it). Read-only.
+        slopes: ``O(h^s)``, the local error of the embedded order-(s-1) formula (used by
+        ``PIController(estimate="embedded")``). Read-only.
         """
         s, c = self.s, self.c
         b_hat = np.zeros(s)

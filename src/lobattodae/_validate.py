@@ -643,8 +643,26 @@ def validate_initial_values(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Check shapes and consistency of ``(q0, p0, λ0)``; compute λ0 if it is not given.
 
-    Returns float64 arrays ``(q0, p0, lam0)``. ``project=True`` replaces ``p0`` by the
-    nearest (least-squares) ``p`` with ``φ(t0, q0, p) = 0`` instead of raising.
+    The checks :func:`~lobattodae.solve` makes before any work, on their own.
+
+    Parameters
+    ----------
+    problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+    t0 : float
+    q0, p0 : array_like, shape (n,)
+    lam0 : array_like, shape (m,), optional
+        Checked against the hidden constraint when given, computed from it otherwise.
+    args : pytree, optional
+    project : bool
+        Replace ``p0`` by the nearest (least-squares) ``p`` with ``φ(t0, q0, p) = 0`` instead
+        of raising.
+    tol : float
+        The consistency tolerance on ``‖φ‖∞`` and the hidden constraint.
+
+    Returns
+    -------
+    (ndarray, ndarray, ndarray)
+        ``(q0, p0, lam0)`` as float64 arrays.
 
     Raises
     ------

@@ -742,8 +742,10 @@ def from_lagrangian(
         Apply :func:`sympy.simplify` to ``M``, ``a``, ``V``, ``μ``, ``ν`` (slower to build,
         sometimes shorter code).
 
-    The multipliers are ordered as ``model.constraint_labels``: nonholonomic constraints
-    first, then holonomic ones; ``p' = ∂L/∂q + F + μᵀλ``.
+    Returns
+    -------
+    LagrangianModel
+        The model; ``model.problem`` is the problem to pass to :func:`~lobattodae.solve`.
 
     Raises
     ------
@@ -753,6 +755,11 @@ def from_lagrangian(
         that are not affine in the velocities, holonomic constraints with velocities,
         accelerations, undefined functions other than the coordinates, clashing symbol
         names, and malformed arguments; the message names the culprit.
+
+    Notes
+    -----
+    The multipliers are ordered as ``model.constraint_labels``: nonholonomic constraints
+    first, then holonomic ones; ``p' = ∂L/∂q + F + μᵀλ``.
     """
     ctx = _Context(coordinates, t)
     name = "LagrangianModel" if name is None else str(name)
