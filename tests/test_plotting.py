@@ -345,3 +345,154 @@ def test_known_systems_cover_the_planar_and_rolling_examples():
     sleigh = get_example("sleigh").problem
     same_functions = L.NonholonomicSystem(sleigh.hamiltonian, sleigh.constraint_matrix, name=sleigh.name)
     assert _animation.known_system(same_functions) is None  # by identity of the problem, not by name
+
+
+# ------------------------------------------------------------------------------ the bicycle
+@pytest.fixture(scope="module")
+def bicycle():
+    """The Whipple bicycle (SymPy model, built once per process: about 5 s), its benchmark
+    args, and two consistent configurations from the model's own ``upright_state`` (pitch by
+    Newton's method on ψ_F): upright, and rolled and steered, moved along and turned."""
+    pytest.importorskip("sympy")
+    from lobattodae.mechanics import bicycle as bike
+
+    model = bike.whipple_bicycle()
+    args = model.args()
+    upright, _ = bike.upright_state(model, 4.6, args)
+    leaning, _ = bike.upright_state(model, 4.6, args, roll=0.3, steer=0.5)
+    # x, y, yaw and the wheel angles do not enter ψ_F: any values keep the state consistent
+    leaning[[0, 1, 2, 6, 7]] = [2.0, -1.0, 0.7, -3.0, 1.2]
+    return model, args, {"upright": upright, "rolled and steered": leaning}
+
+
+def _bicycle_psi(model, q, args):
+    return float(model.holonomic_residual(0.0, q, args)[0])
+
+
+@pytest.mark.parametrize("state", ["upright", "rolled and steered"])
+def test_bicycle_drawing_touches_the_ground_with_round_wheels(bicycle, state):
+    """The drawing (x, −y, −z of the model's MPRS axes) puts both contact points on the ground,
+    draws the rims as circles of radius rR and rF about the wheel centres through the contact
+    points and never below the ground, and the rear contact is (x, y) of the coordinates."""
+    model, args, states = bicycle
+    q = states[state]
+    assert abs(_bicycle_psi(model, q, args)) <= 1e-15  # the model's check: a consistent state
+    shapes = _animation._whipple_bicycle(0.0, q, args)
+    rear, front = shapes["rear contact"][0], shapes["front contact"][0]
+    assert abs(rear[2]) <= 1e-12 and abs(front[2]) <= 1e-12
+    np.testing.assert_allclose(rear[:2], [q[0], -q[1]], rtol=0, atol=1e-14)
+    for wheel, radius, contact in (("rear", float(args["rR"]), rear), ("front", float(args["rF"]), front)):
+        rim, spoke = shapes[f"{wheel} wheel"], shapes[f"{wheel} spoke"]
+        centre = spoke[0]
+        np.testing.assert_allclose(np.linalg.norm(rim - centre, axis=1), radius, rtol=1e-14)
+        np.testing.assert_allclose(np.linalg.norm(spoke[1] - centre), radius, rtol=1e-14)
+        normal = np.cross(rim[5] - centre, rim[21] - centre)
+        normal /= np.linalg.norm(normal)
+        np.testing.assert_allclose((rim - centre) @ normal, 0.0, atol=1e-14)  # a plane circle...
+        assert abs((spoke[1] - centre) @ normal) <= 1e-14  # ...with the spoke in its plane
+        np.testing.assert_allclose(rim[0], contact, atol=1e-15)
+        assert rim[:, 2].min() >= -1e-12  # the contact is the rim's lowest point
+        if wheel == "rear":  # the rear axle is tilted from the horizontal by the roll angle
+            assert abs(normal[2]) == pytest.approx(np.sin(abs(q[3])), abs=1e-14)
+
+
+def test_bicycle_drawing_front_contact_is_the_models(bicycle):
+    """The drawing's front contact is the model's: its height is −ψ_F (the model's holonomic
+    constraint, ``C_F·z + rF √(1 − (a·z)²)``) in any configuration, consistent or not."""
+    model, args, _ = bicycle
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        q = rng.uniform(-0.6, 0.6, size=8)
+        height = _animation._whipple_bicycle(0.0, q, args)["front contact"][0, 2]
+        psi = _bicycle_psi(model, q, args)
+        assert abs(psi) > 1e-3  # off the constraint manifold
+        assert height == pytest.approx(-psi, rel=1e-12, abs=1e-15)
+
+
+def test_bicycle_drawing_directions(bicycle):
+    """Positive roll leans right and positive steer turns the front wheel right (MPRS: y to the
+    right, drawn as −y), height up; the reference geometry: wheelbase w, wheel centres at rR, rF."""
+    _, args, states = bicycle
+    up = _animation._whipple_bicycle(0.0, states["upright"], args)
+    np.testing.assert_allclose(up["front contact"][0], [float(args["w"]), 0.0, 0.0], atol=1e-14)
+    np.testing.assert_allclose(up["rear spoke"][0], [0.0, 0.0, float(args["rR"])], atol=1e-14)
+    np.testing.assert_allclose(up["front spoke"][0], [float(args["w"]), 0.0, float(args["rF"])], atol=1e-14)
+    assert up["rear frame"][:, 2].max() > 2 * float(args["rF"])  # upright, above the wheels
+    np.testing.assert_allclose(up["rear spoke"][1], up["rear contact"][0], atol=1e-14)  # θ_R = 0: spoke down
+    q = states["upright"].copy()
+    q[6] = -0.3  # rolled forwards (θ̇_R = −v/rR): the spoke's lower end has moved backwards
+    assert _animation._whipple_bicycle(0.0, q, args)["rear spoke"][1, 0] < -0.05
+    q = states["rolled and steered"].copy()
+    q[[0, 1, 2]] = 0.0  # heading along x
+    lean = _animation._whipple_bicycle(0.0, q, args)
+    assert lean["rear frame"][1, 1] < -0.1  # the rear frame's mass centre (rider) is right of the rear contact
+    rim = lean["front wheel"]
+    centre = lean["front spoke"][0]
+    normal = np.cross(rim[5] - centre, rim[21] - centre)
+    forward = np.cross(normal, [0.0, 0.0, 1.0])
+    forward *= np.sign(forward[0])
+    assert forward[1] < -0.3 * forward[0]  # heading right: −y in the drawing
+
+
+def test_bicycle_is_a_known_system_and_is_followed(bicycle, knife, tmp_path):
+    from lobattodae.mechanics import _bicycle
+
+    model, args, states = bicycle
+    system = _animation.known_system(model.problem)
+    assert system is not None and system.name == "Whipple bicycle" and system.follow
+    assert system.labels == _bicycle.COORDINATES and system.path == (0, 1)
+    assert set(system.trail) == {"rear contact", "front contact"}
+    # identity, not structure: another problem of the same class is not the bicycle
+    assert _animation.known_system(dataclasses.replace(model.problem)) is None
+    assert _animation.known_system(None) is None
+
+    t = np.linspace(0.0, 1.0, 9)
+    q = np.tile(states["rolled and steered"], (t.size, 1))
+    q[:, 0] += 4.6 * t  # rolling along x (the holonomic constraint does not see x or the wheel angles)
+    q[:, 6] -= 4.6 / float(args["rR"]) * t
+    sol = dataclasses.replace(knife[1], t=t, q=q, p=np.zeros_like(q), lam=np.zeros((t.size, model.m)),
+                              problem=model.problem, args=args, sol=None)
+    anim = L.animate(sol, frames=5)
+    ax = anim._fig.axes[0]
+    assert ax.name == "3d" and ax.get_zlabel() == "−z" and ax.get_ylabel() == "−y"
+    gids = [line.get_gid() for line in ax.get_lines()]
+    assert gids.count("trail") == 2 and gids.count("path") == 2
+    assert {"rear wheel", "front wheel", "rear spoke", "front spoke", "rear frame", "front frame"} <= set(gids)
+    assert "Whipple bicycle" in anim._fig._suptitle.get_text()
+    x0 = ax.get_xlim()
+    anim._draw_frame(4)
+    x4 = ax.get_xlim()
+    # the view follows: the window keeps its width and moves with the bicycle (4.6 m)
+    assert x4[1] - x4[0] == pytest.approx(x0[1] - x0[0]) and x4[0] - x0[0] == pytest.approx(4.6, abs=0.05)
+    assert x4[1] - x4[0] < 3.0
+    del anim
+    gc.collect()
+    assert _gif_frames(L.animate(sol, tmp_path / "bike.gif", frames=4, dpi=40, figsize=(3, 3)))[0] == 4
+    # follow=False shows the whole run
+    anim = L.animate(sol, frames=3, follow=False)
+    assert anim._fig.axes[0].get_xlim()[1] - anim._fig.axes[0].get_xlim()[0] > 4.6
+    del anim
+    gc.collect()
+
+
+def test_animate_several_trails_and_follow_for_any_drawing(sleigh):
+    _, sol = sleigh
+
+    def draw(t, q, args):
+        return {"a": [q[0], q[1]], "b": [q[0] + 1.0, q[1]], "stick": [[q[0], q[1]], [q[0] + 1.0, q[1]]]}
+
+    anim = L.animate(sol, draw=draw, frames=6, trail=["a", "b"], follow=True)
+    ax = anim._fig.axes[0]
+    trails = [line for line in ax.get_lines() if line.get_gid() == "trail"]
+    assert [line.get_label() for line in trails] == ["a", "b"]
+    assert trails[0].get_color() != trails[1].get_color()
+    anim._draw_frame(5)
+    _, q = frame_states(sol, 6)
+    lo, hi = ax.get_xlim()
+    assert lo < q[-1, 0] < hi and hi - lo < 1.5  # centred on the last state, one frame's size
+    del anim
+    gc.collect()
+    with pytest.raises(ValueError, match="trail must be one of"):
+        L.animate(sol, draw=draw, frames=3, trail=["a", "nothing"])
+    with pytest.raises(ValueError, match="follow must be"):
+        L.animate(sol, draw=draw, frames=3, follow="yes")

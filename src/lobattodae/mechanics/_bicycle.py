@@ -63,13 +63,14 @@ never from the formulas of MPRS Appendix A.
 from __future__ import annotations
 
 import functools
+import weakref
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import sympy as sp
-from sympy.physics.mechanics import ReferenceFrame, dynamicsymbols
+from sympy.physics.mechanics import ReferenceFrame, Vector, dynamicsymbols
 
 from ._model import LagrangianModel, from_lagrangian
 
@@ -107,25 +108,28 @@ def _rigid_body_energy(mass, vel, omega, inertia):
     return sp.Rational(1, 2) * mass * (vel.T * vel)[0, 0] + sp.Rational(1, 2) * (omega.T * inertia * omega)[0, 0]
 
 
-@functools.lru_cache(maxsize=None)
-def whipple_bicycle() -> LagrangianModel:
-    r"""The nonlinear Whipple bicycle of MPRS (module docstring) as a :class:`LagrangianModel`.
+class _Kinematics(NamedTuple):
+    """Frames and points of the model (SymPy), shared by :func:`whipple_bicycle` and the
+    numeric :func:`_geometry` (the drawing of :func:`lobattodae.animate`)."""
 
-    Coordinates ``(x, y, yaw, roll, pitch, steer, theta_R, theta_F)`` (:data:`COORDINATES`),
-    multipliers: 4 nonholonomic (rear wheel longitudinal and lateral, front wheel
-    longitudinal and lateral, along the yawed ground axes) and 1 holonomic (the front
-    contact's height ``ψ_F = 0``). Parameters: the 26 symbols of MPRS Table 1 (``w, c, lam, g,
-    rR, mR, IRxx, IRyy, xB, zB, mB, IBxx, IBxz, IByy, IBzz, xH, zH, mH, IHxx, IHxz, IHyy, IHzz,
-    rF, mF, IFxx, IFyy``) with the benchmark values as defaults (:data:`BENCHMARK`).
-    Built once per process (cached).
-    """
-    x, y, yaw, roll, pitch, steer, thr, thf = dynamicsymbols(" ".join(COORDINATES))
-    coords = [x, y, yaw, roll, pitch, steer, thr, thf]
-    S = {name: sp.Symbol(name) for name in BENCHMARK}
-    w, c, lam, g = S["w"], S["c"], S["lam"], S["g"]
-    rR, rF = S["rR"], S["rF"]
-    mR, mB, mH, mF = S["mR"], S["mB"], S["mH"], S["mF"]
+    N: ReferenceFrame   # ground, z down
+    Y: ReferenceFrame   # yawed
+    A: ReferenceFrame   # yawed and rolled
+    B: ReferenceFrame   # rear frame (pitched)
+    H: ReferenceFrame   # front frame (B steered about the steering axis)
+    P: Vector           # rear contact (position vectors from the ground origin)
+    CR: Vector          # rear wheel centre
+    GB: Vector          # rear frame mass centre
+    Sax: Vector         # where the steering axis meets the ground in the reference configuration
+    CF: Vector          # front wheel centre
+    GH: Vector          # front frame mass centre
 
+
+def _kinematics(coords, S) -> _Kinematics:
+    """The frames and points of MPRS (module docstring) for coordinates ``coords`` (functions of
+    time for the model, plain symbols for :func:`_geometry`) and parameter symbols ``S``."""
+    x, y, yaw, roll, pitch, steer = coords[:6]
+    w, c, lam, rR, rF = S["w"], S["c"], S["lam"], S["rR"], S["rF"]
     # Frames: N ground (z down), Y yawed, A yawed and rolled, B rear frame (pitched),
     # H front frame: B turned by δ about the steering axis d = sin λ B.x + cos λ B.z
     # (B -> tilted by λ about y -> steered about z -> tilted back), so H = B at δ = 0.
@@ -144,6 +148,39 @@ def whipple_bicycle() -> LagrangianModel:
     Sax = CR + (w + c) * B.x + rR * B.z                      # steering axis meets the ground (reference)
     CF = Sax - c * H.x - rF * H.z                            # front wheel centre
     GH = Sax + (S["xH"] - w - c) * H.x + S["zH"] * H.z       # front frame mass centre
+    return _Kinematics(N, Y, A, B, H, P, CR, GB, Sax, CF, GH)
+
+
+def _front_contact_direction(K: _Kinematics):
+    """``(u, √(1 − (n·a)²))``: the unit vector ``u = (n − (n·a) a)/√(1 − (n·a)²)`` from the
+    front wheel centre to its lowest point (``a`` the front axle ``H.y``, ``n`` the global
+    ``z``), and the root, so that the contact's height condition is ``n·C_F + rF √(…) = 0``."""
+    s = K.H.y.dot(K.N.z)
+    root = sp.sqrt(1 - s**2)
+    return (K.N.z - s * K.H.y) / root, root
+
+
+@functools.lru_cache(maxsize=None)
+def whipple_bicycle() -> LagrangianModel:
+    r"""The nonlinear Whipple bicycle of MPRS (module docstring) as a :class:`LagrangianModel`.
+
+    Coordinates ``(x, y, yaw, roll, pitch, steer, theta_R, theta_F)`` (:data:`COORDINATES`),
+    multipliers: 4 nonholonomic (rear wheel longitudinal and lateral, front wheel
+    longitudinal and lateral, along the yawed ground axes) and 1 holonomic (the front
+    contact's height ``ψ_F = 0``). Parameters: the 26 symbols of MPRS Table 1 (``w, c, lam, g,
+    rR, mR, IRxx, IRyy, xB, zB, mB, IBxx, IBxz, IByy, IBzz, xH, zH, mH, IHxx, IHxz, IHyy, IHzz,
+    rF, mF, IFxx, IFyy``) with the benchmark values as defaults (:data:`BENCHMARK`).
+    Built once per process (cached).
+    """
+    x, y, yaw, roll, pitch, steer, thr, thf = dynamicsymbols(" ".join(COORDINATES))
+    coords = [x, y, yaw, roll, pitch, steer, thr, thf]
+    S = {name: sp.Symbol(name) for name in BENCHMARK}
+    g, rR, rF = S["g"], S["rR"], S["rF"]
+    mR, mB, mH, mF = S["mR"], S["mB"], S["mH"], S["mF"]
+
+    K = _kinematics(coords, S)
+    N, Y, A, B, H = K.N, K.Y, K.A, K.B, K.H
+    CR, GB, CF, GH = K.CR, K.GB, K.CF, K.GH
 
     # Angular velocities, body-frame components.
     wB = B.ang_vel_in(N)
@@ -172,9 +209,7 @@ def whipple_bicycle() -> LagrangianModel:
     slip_R = CR.dt(N) + omega_R.cross(rR * A.z)
     # Front: the lowest point of the wheel, u = (n − (n·a) a)/√(1 − (n·a)²).
     omega_F = wH + thf.diff(T) * H.y
-    s = H.y.dot(N.z)
-    root = sp.sqrt(1 - s**2)
-    u = (N.z - s * H.y) / root
+    u, root = _front_contact_direction(K)
     slip_F = CF.dt(N) + omega_F.cross(rF * u)
     psi_F = CF.dot(N.z) + rF * root
     nonholonomic = {
@@ -183,8 +218,75 @@ def whipple_bicycle() -> LagrangianModel:
         "front longitudinal": slip_F.dot(Y.x),
         "front lateral": slip_F.dot(Y.y),
     }
-    return from_lagrangian(L, coords, T, nonholonomic=nonholonomic, holonomic={"front contact": psi_F},
-                           name="Whipple bicycle", defaults=dict(BENCHMARK))
+    model = from_lagrangian(L, coords, T, nonholonomic=nonholonomic, holonomic={"front contact": psi_F},
+                            name="Whipple bicycle", defaults=dict(BENCHMARK))
+    _PROBLEMS.add(model.problem)
+    return model
+
+
+#: The problems :func:`whipple_bicycle` has built (weakly held): :func:`lobattodae.animate` and
+#: :func:`lobattodae.plot` recognise a bicycle run by the identity of its problem, as they do
+#: the examples' (the cache of :func:`whipple_bicycle` may be cleared; this set forgets nothing
+#: that is still alive).
+_PROBLEMS: weakref.WeakSet = weakref.WeakSet()
+
+
+def _is_whipple_problem(problem) -> bool:
+    """Whether ``problem`` is the problem of a model built by :func:`whipple_bicycle`."""
+    return problem in _PROBLEMS  # False for objects that cannot be weakly referenced
+
+
+# ----------------------------------------------------------------------------- geometry
+#: The points and directions of :func:`_geometry`, in this order.
+_GEOMETRY = ("rear contact", "rear centre", "rear axle", "rear spoke", "front contact", "front centre",
+             "front axle", "front spoke", "steering axis ground", "steering axis", "front frame x",
+             "rear frame mass centre")
+
+
+@functools.lru_cache(maxsize=None)
+def _geometry_function():
+    """``(q, params) -> (12, 3)`` array of :data:`_GEOMETRY` in ground components, lambdified
+    from the model's own frames and points (:func:`_kinematics`, :func:`_front_contact_direction`)
+    with plain symbols for the coordinates. Built once per process (about 0.3 s)."""
+    q = sp.symbols(" ".join(COORDINATES))
+    S = {name: sp.Symbol(name) for name in BENCHMARK}
+    K = _kinematics(q, S)
+    u, _ = _front_contact_direction(K)
+    R = K.B.orientnew("R", "Axis", [q[_THR], K.B.y])    # rear wheel: turned by θ_R about the rear axle
+    F = K.H.orientnew("F", "Axis", [q[7], K.H.y])       # front wheel: turned by θ_F about the front axle
+    vectors = {
+        "rear contact": K.CR + S["rR"] * K.A.z,         # the rear no-slip condition's contact point
+        "rear centre": K.CR,
+        "rear axle": K.B.y,
+        "rear spoke": R.z,                              # material: along B.z (down, upright) at θ_R = 0
+        "front contact": K.CF + S["rF"] * u,            # the front contact of ψ_F and the front no-slip condition
+        "front centre": K.CF,
+        "front axle": K.H.y,
+        "front spoke": F.z,
+        "steering axis ground": K.Sax,
+        "steering axis": sp.sin(S["lam"]) * K.B.x + sp.cos(S["lam"]) * K.B.z,   # d, pointing down
+        "front frame x": K.H.x,
+        "rear frame mass centre": K.GB,
+    }
+    assert tuple(vectors) == _GEOMETRY
+    rows = sp.Matrix([list(vectors[k].to_matrix(K.N)) for k in _GEOMETRY])
+    params = sorted({str(sym) for sym in rows.free_symbols} - set(COORDINATES))
+    fn = sp.lambdify([q, [S[p] for p in params]], rows, modules="numpy", cse=True)
+    return fn, tuple(params)
+
+
+def _geometry(q, args) -> dict[str, np.ndarray]:
+    r"""The bicycle's points and directions at one configuration ``q`` (8 coordinates) with the
+    parameters ``args`` (a :meth:`LagrangianModel.args` dict), from the model's kinematics
+    (:func:`_kinematics`): ``{name: array (3,)}`` for the names of :data:`_GEOMETRY`, ground
+    components in MPRS axes (``z`` down). The contacts are the points the constraints use:
+    ``rear contact = C_R + rR A.z`` (on the ground by construction) and ``front contact =
+    C_F + rF u``, whose ``z`` is ``ψ_F``; ``steering axis`` is the unit vector
+    ``d = sin λ B.x + cos λ B.z`` through ``steering axis ground``; the spokes are the wheels'
+    material ``z`` axes (``B.z``, ``H.z`` turned by ``θ_R``, ``θ_F`` about the axles)."""
+    fn, params = _geometry_function()
+    values = np.asarray(fn(np.asarray(q, dtype=float), [float(args[p]) for p in params]), dtype=float)
+    return dict(zip(_GEOMETRY, values))
 
 
 # ----------------------------------------------------------------------------- states
