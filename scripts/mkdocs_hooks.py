@@ -61,7 +61,7 @@ API_SECTIONS = {
     "errors": [
         "LobattoDAEInputError", "ShapeError", "ProblemDefinitionError", "ProblemFunctionError",
         "InconsistentInitialValuesError", "SingularConstraintError", "CheckpointError",
-        "EnsembleFileError", "SolverError", "NewtonFailure",
+        "CheckpointWriteError", "EnsembleFileError", "SolverError", "NewtonFailure",
     ],
 }
 

@@ -296,8 +296,10 @@ def test_crash_between_segment_and_commit_resumes_bit_for_bit(setup, tmp_path, m
         real(target, payload)
 
     monkeypatch.setattr(_checkpoint, "_write_atomic", dies_on_third_commit)
-    with pytest.raises(OSError, match="simulated crash"):
+    # the failed save ends the run with our error (tests/test_checkpoint_write.py), the cause chained
+    with pytest.raises(L.CheckpointWriteError, match="simulated crash") as info:
         L.solve(ex.problem, method, (0.0, 30.0), ex.q0, ex.p0, checkpoint=path, checkpoint_every=CHUNK, **kw)
+    assert isinstance(info.value.__cause__, OSError)
     monkeypatch.undo()
     with np.load(path) as data:
         assert json.loads(str(data["counters"]))["done"] == 2 * CHUNK

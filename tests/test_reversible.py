@@ -245,8 +245,8 @@ def _vanishing(t, q, p, lam, f, g, args):  # zero at t > 1: log σ = -inf
 
 
 def test_a_density_that_is_not_positive_stops_the_control(contact):
-    """No silent nonsense: a density ≤ 0 at the start gives ε = NaN (the first step fails as
-    NONFINITE); one that vanishes after a step rejects it with Result.NONFINITE."""
+    """No silent nonsense: a density ≤ 0 at the start gives ε = NaN (the first step fails with
+    Result.DENSITY_NOT_POSITIVE); one that vanishes after a step rejects it with that result."""
     ex = contact
     method = L.LobattoIIIAIIIB(stages=3)
     options = ControlOptions(1, 1e-8, 1e-10, FIRST_STEP, jnp.inf).cast(F64)
@@ -261,7 +261,7 @@ def test_a_density_that_is_not_positive_stops_the_control(contact):
     yy = jnp.concatenate(y[:2])
     report = StepReport(jnp.asarray(True), jnp.asarray(0), F64(1.0), h, yy, yy, jnp.zeros_like(yy), *y)
     accept, new, result = jax.jit(lambda st, r: c.adapt(st, ex.problem, ex.args, r))(st._replace(t=F64(1.0)), report)
-    assert not bool(accept) and int(result) == L.Result.NONFINITE and float(new.rho) == float(st.rho)
+    assert not bool(accept) and int(result) == L.Result.DENSITY_NOT_POSITIVE and float(new.rho) == float(st.rho)
 
 
 @pytest.mark.slow
@@ -270,7 +270,8 @@ def test_a_density_that_is_not_positive_stops_the_run(contact, density):
     ex = contact
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 5.0), ex.q0, ex.p0, args=ex.args,
                   controller=ReversibleStepSize(density), first_step=FIRST_STEP, throw=False)
-    assert not sol.success and sol.result == L.Result.NONFINITE
+    assert not sol.success and sol.result == L.Result.DENSITY_NOT_POSITIVE
+    assert "density of ReversibleStepSize was not positive and finite" in sol.message
     assert np.all(np.isfinite(sol.q)) and sol.t[-1] <= 1.0 + 0.3
 
 

@@ -16,7 +16,7 @@ import jax as _jax
 _jax.config.update("jax_enable_x64", True)
 
 from ._cache import enable_compilation_cache  # noqa: E402
-from ._checkpoint import CheckpointError  # noqa: E402
+from ._checkpoint import CheckpointError, CheckpointWriteError  # noqa: E402
 from ._conditions import TableauReport, check_tableau  # noqa: E402
 from ._cpu import set_cpu_threads  # noqa: E402
 from ._convergence import ConvergenceStudy, convergence_study, observed_order  # noqa: E402
@@ -83,6 +83,7 @@ if _os.environ.get(_CACHE_ENV) and not _cache_switched_off():
 __all__ = [
     "AdaptiveResult",
     "CheckpointError",
+    "CheckpointWriteError",
     "EnsembleFileError",
     "DenseOutput",
     "Event",

@@ -157,6 +157,7 @@ __all__ = [
     "VERSION",
     "STATE_FINGERPRINT",
     "CheckpointError",
+    "CheckpointWriteError",
     "Segments",
     "Checkpoint",
     "state_fields",
@@ -208,6 +209,29 @@ class CheckpointError(LobattoDAEInputError):
     path : str
         The checkpoint file, as given.
     """
+
+
+class CheckpointWriteError(LobattoDAEInputError):
+    """A checkpoint could not be written during a run (a full disk, a directory made read-only,
+    a quota): :func:`lobattodae.solve` stops there. The checkpoint on disk is the last one
+    committed, intact (a save is atomic), and the message says how far it holds the run.
+
+    Attributes
+    ----------
+    path : str
+        The checkpoint file, as given.
+    solution : Solution or None
+        The computed prefix, everything the run had computed when the write failed (more than
+        the checkpoint holds); set by :func:`lobattodae.solve`.
+    errno : int or None
+        The operating system's error number (``errno.ENOSPC``, ``errno.EROFS``, ...).
+    """
+
+    def __init__(self, message: str, *, path: str, solution: Any = None, errno: int | None = None):
+        super().__init__(message)
+        self.path = path
+        self.solution = solution
+        self.errno = errno
 
 
 @dataclasses.dataclass(frozen=True)

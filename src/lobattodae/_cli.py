@@ -77,10 +77,31 @@ def _positive_int(text: str) -> int:
     return v
 
 
-def _stages(text: str) -> int:
+#: ``--stages`` above this compile for long: warned about (the tableau command does not compile).
+#: Measured with ``lobattodae run`` (adaptive, LOBATTODAE_NO_CACHE=1) on 2 loaded CPU cores: knife
+#: edge s = 3, 6, 8, 10, 16, 24: 4.9, 5.2, 7.1, 8.4, 8.5, 18.9 s; sleigh s = 24, 32, 48, 64: 23, 82,
+#: 157, 219 s; s = 100: 574 s (issue #30).
+MANY_STAGES = 16
+
+
+def _stage_count(text: str) -> int:
     v = _positive_int(text)
     if v < 2:
         raise argparse.ArgumentTypeError(f"the number of stages must be >= 2 (Lobatto needs both end points), got {v}")
+    return v
+
+
+def _stages(text: str) -> int:
+    """A number of stages for a command that compiles the step loop: a warning on stderr when
+    compiling it will take long."""
+    v = _stage_count(text)
+    if v > MANY_STAGES:
+        sys.stderr.write(
+            f"lobattodae: warning: --stages {v}: compiling the step loop takes longer the more stages, and fast "
+            f"beyond s = {MANY_STAGES} (measured on 2 CPU cores: under 10 s up to s = 16, about 20 s at s = 24, "
+            "80 s at s = 32, 3-4 minutes at s = 48-64, nearly 10 minutes at s = 100); nothing is printed "
+            "meanwhile.\n"
+        )
     return v
 
 
@@ -355,7 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", default="convergence.png", help="PNG file for the convergence plot")
 
     p = sub.add_parser("tableau", help="print the Lobatto IIIA-IIIB coefficients for s stages")
-    p.add_argument("s", type=_stages)
+    p.add_argument("s", type=_stage_count)
     p.add_argument("--check", action="store_true", help="also check simplifying assumptions and hypotheses")
 
     p = sub.add_parser("convergence", help="convergence study on an example with a closed-form solution")

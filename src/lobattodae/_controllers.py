@@ -34,6 +34,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from ._errors import ShapeError
 from ._problem import consistent_lambda, vector_field
 from ._results import Result
 
@@ -222,7 +223,7 @@ class PIController(_TimeAndEnd):
     **The estimate** (``estimate="doubling"``, the default) is Richardson's: each step of size
     h is taken as two half steps (kept) and once whole (compared), and
     ``e = (y_halves - y_whole) / (2^(2s-2) - 1)`` estimates the local error of the kept result,
-    ``O(h^(2s-1))`` (:mod:`lobattodae._doubling`). It is asymptotically exact, needs no constant
+    ``O(h^(2s-1))`` (``docs/variable-steps.md`` §1). It is asymptotically exact, needs no constant
     fitted to problems, and a step too long for its asymptotics (a fast transient, a
     constraint-damped mode beyond the stability limit) shows as a large difference and is
     rejected. A step costs three Newton solves.
@@ -333,7 +334,10 @@ class PIController(_TimeAndEnd):
         scale = st.atol + st.rtol * size
         if self.estimate == "doubling":  # per unit step, relative to the requested interval
             scale = jnp.maximum(scale * jnp.abs(report.h) / st.span, ROUNDOFF_FLOOR * (1.0 + size))
-        err = _rms(report.error / scale)
+        # a component with no error where its scale is 0 (atol=0 and the component 0, e.g. held at rest
+        # by the constraint) passes; an error there cannot (the run then fails, STEP_SIZE_TOO_SMALL)
+        err = _rms(jnp.where(report.error == 0, 0.0, report.error / jnp.where(scale == 0, 1.0, scale)))
+        err = jnp.where(jnp.any((scale == 0) & (report.error != 0)), jnp.inf, err)
         usable = report.ok & jnp.isfinite(err)
         err = jnp.where(usable, err, jnp.inf)
         accept = err <= 1.0
@@ -436,7 +440,8 @@ class ReversibleStepSize(_TimeAndEnd):
     symmetric). Use it with the symmetric scheme, ``lam_start="previous"`` or ``"auto"``
     (error-controlled runs switch ``"auto"`` to the unsymmetric ``"consistent"``; this
     controller does not). The last step is shortened to end on ``t1``. A density that is not
-    positive and finite along the solution stops the run with ``Result.NONFINITE``.
+    positive and finite along the solution stops the run with ``Result.DENSITY_NOT_POSITIVE``;
+    one that does not return a scalar is refused when the loop is set up (``ShapeError``).
 
     Parameters
     ----------
@@ -472,12 +477,25 @@ class ReversibleStepSize(_TimeAndEnd):
         def log_density(tt, qq, pp):
             lam_c = consistent_lambda(problem, tt, qq, pp, lam, args, iterations=1)
             f, g = vector_field(problem, tt, qq, pp, lam_c, args)
-            return jnp.log(self.density(tt, qq, pp, lam_c, f, g, args)), (f, g)
+            return jnp.log(self._scalar(self.density(tt, qq, pp, lam_c, f, g, args))), (f, g)
 
         t = jnp.asarray(t, q.dtype)
         _, (f, g) = log_density(t, q, p)
         value, rate = jax.jvp(lambda *x: log_density(*x)[0], (t, q, p), (jnp.ones_like(t), f, g))
         return jnp.exp(value), rate
+
+    def _scalar(self, sigma):
+        """The density's value as a 0-d array; anything but one number is refused when the loop is
+        traced (set up), naming the density."""
+        sigma = jnp.asarray(sigma)
+        if sigma.size != 1:
+            name = getattr(self.density, "__name__", repr(self.density))
+            raise ShapeError(
+                f"ReversibleStepSize density {name!r} must return one positive number σ(t, q, p) (a scalar); "
+                f"it returned shape {sigma.shape}. Reduce it to a scalar, e.g. jnp.linalg.norm(...) or "
+                "jnp.sum(...)."
+            )
+        return jnp.reshape(sigma, ())
 
     def init(self, problem, method, t0, t1, q0, p0, lam0, args, options: ControlOptions) -> ReversibleState:
         k = 2 * method.stages - 2
@@ -486,7 +504,7 @@ class ReversibleStepSize(_TimeAndEnd):
         # as for PIController, derivatives follow the step sequence the run chose (see adapt)
         h0, (sigma0, rate) = jax.lax.stop_gradient((h0, self.density_and_rate(problem, t0, q0, p0, lam0, args)))
         usable = jnp.isfinite(sigma0) & (sigma0 > 0) & jnp.isfinite(rate)
-        epsilon = jnp.where(usable, h0 * sigma0, jnp.nan)  # NaN: the first step fails as NONFINITE
+        epsilon = jnp.where(usable, h0 * sigma0, jnp.nan)  # NaN: the first step fails, DENSITY_NOT_POSITIVE
         direction = jnp.where(t1 >= t0, 1.0, -1.0).astype(q0.dtype)
         return ReversibleState(
             t=t0, rho=sigma0 + direction * 0.5 * epsilon * rate, epsilon=epsilon, t0=t0, t_end=t1,
@@ -513,7 +531,10 @@ class ReversibleStepSize(_TimeAndEnd):
             t=jnp.where(ok, t1, st.t), rho=jnp.where(ok, bounded, st.rho),
             n_clamped=st.n_clamped + (ok & (bounded != rho)).astype(jnp.int32),
         )
-        result = jnp.where(report.ok, jnp.where(usable, Result.SUCCESSFUL, Result.NONFINITE), report.result)
+        bad = Result.DENSITY_NOT_POSITIVE
+        result = jnp.where(report.ok, jnp.where(usable, Result.SUCCESSFUL, bad), report.result)
+        # ε is NaN when the density was unusable at the start (init): the first step cannot be sized
+        result = jnp.where(jnp.isnan(st.epsilon), bad, result)
         return ok, new, result.astype(jnp.int32)
 
     def stop_at(self, st: ReversibleState, t_stop) -> ReversibleState:

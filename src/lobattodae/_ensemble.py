@@ -221,7 +221,7 @@ def _count(name: str, value, *, allow_none: bool = False) -> None:
 
 
 def _number(name: str, value, *, finite: bool = True) -> float:
-    if isinstance(value, bool) or np.ndim(value) != 0:
+    if isinstance(value, (bool, str, bytes)) or np.ndim(value) != 0:
         raise LobattoDAEInputError(f"{name} must be a real number; got {value!r}.")
     try:
         x = float(value)

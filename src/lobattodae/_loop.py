@@ -31,7 +31,7 @@ import numpy as np
 from ._controllers import END_STRETCH, ConstantStepSize, ControlOptions, PIController, StepReport
 from ._dense import DenseStep, dense_size, empty_dense_step, evaluate, pack_dense, unpack_dense
 from ._errors import LobattoDAEInputError
-from ._events import Event, EventState, crossings, event_values, locate
+from ._events import Event, EventState, crossings, event_values, locate_all, node_times, node_values
 from ._packing import StatePacking
 from ._results import Result
 from ._doubling import for_error_control
@@ -202,10 +202,11 @@ class Attempt(NamedTuple):
     info: Any  # the stepper's StepInfo
     kept: jax.Array  # bool: accepted and not turned into a re-step to a terminal zero
     finished: jax.Array  # bool: kept, and the controller is done
-    final_event: jax.Array  # bool: finished on a terminal event's zero
+    final_event: jax.Array  # bool: finished on a terminal event's zero (t1, q1, p1, lam1: the final row)
     constraint: jax.Array  # ‖φ(t1, q1, p1)‖∞
-    found: jax.Array  # (n_events,) bool: zeros found in the step
-    times: jax.Array  # (n_events,) their times
+    found: jax.Array  # (N, n_events) bool: zeros found in the step (N sub-intervals between its nodes)
+    times: jax.Array  # (N, n_events) their times
+    final_index: jax.Array  # int32: the terminal event whose zero ends the run (with final_event)
 
 
 def clip_to_outputs(t, h, t_eval):
@@ -271,16 +272,20 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
     )
     accept, ctrl, result = controller.adapt(st.controller, problem, args, report)
     t1 = jnp.where(accept, controller.time(ctrl), t + h)
-    ev_state, found, times, stop, t_stop, again = _events(events, pair, direction, st, info.dense, t1, q1, p1, accept,
-                                                          args, dtype)
-    ctrl = jax.tree_util.tree_map(lambda a, b: jnp.where(stop, a, b), controller.stop_at(st.controller, t_stop), ctrl)
+    ev = _events(events, pair, direction, st, info.dense, t1, q1, p1, accept, args, dtype)
+    ev_state, stop, again = ev.state, ev.stop, ev.again
+    stopped = controller.stop_at(st.controller, ev.t_stop)
+    ctrl = jax.tree_util.tree_map(lambda a, b: jnp.where(stop, a, b), stopped, ctrl)
     kept = accept & ~stop
     finished = kept & controller.done(ctrl)
-    final_event = finished & (st.events.stopping >= 0)
+    final_event = (finished & (st.events.stopping >= 0)) | ev.at_start
+    final_index = jnp.where(ev.at_start, ev_state.stopping, st.events.stopping)
+    # a run that ends on a terminal zero at the step's start: its final row is the step point
+    t1, q1, p1, lam1 = (jnp.where(ev.at_start, a, b) for a, b in zip((t, st.q, st.p, st.lam), (t1, q1, p1, lam1)))
     # 3. result
     result = jnp.where(final_event & (result == Result.SUCCESSFUL), Result.EVENT, result)
     if n_ev:  # an event whose value is not finite can no longer be located: stop, never run on blind
-        blind = kept & ~jnp.all(jnp.isfinite(ev_state.values))
+        blind = kept & ~ev.finite
         result = jnp.where(blind & (result == Result.SUCCESSFUL), Result.EVENT_NOT_FINITE, result)
     result = jnp.where(st.result != Result.SUCCESSFUL, st.result, result).astype(jnp.int32)
     constraint = jnp.max(jnp.abs(problem.phi(t1, q1, p1, args)), initial=0.0)
@@ -292,7 +297,7 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
         # only t_eval rows and events read the last step's dense output: keep the loop lean otherwise
         last=jax.tree_util.tree_map(keep, info.dense, st.last) if output.t_eval or n_ev else st.last,
         events=ev_state._replace(
-            counts=ev_state.counts + (final_event & (jnp.arange(n_ev) == st.events.stopping)).astype(jnp.int32)
+            counts=ev_state.counts + (final_event & (jnp.arange(n_ev) == final_index)).astype(jnp.int32)
         ),
         k_eval=st.k_eval,
         event_refinements=st.event_refinements + again.astype(jnp.int32),
@@ -304,28 +309,43 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
         max_constraint=jnp.where(kept, jnp.maximum(st.max_constraint, constraint), st.max_constraint),
         max_drift=jnp.where(kept, jnp.maximum(st.max_drift, info.drift), st.max_drift),
     )
-    return new, Attempt(t1, q1, p1, lam1, info, kept, finished, final_event, constraint, found, times)
+    return new, Attempt(t1, q1, p1, lam1, info, kept, finished, final_event, constraint, ev.found, ev.times,
+                        final_index)
 
 
 def _events(events, pair, direction, st: State, step: DenseStep, t1, q1, p1, accept, args, dtype):
-    """The event functions at the new point, the zeros found in the step (with their times),
-    and whether a terminal one stops the run inside it (at ``t_stop``)."""
+    """The event functions at the new point, the zeros found in the step (with their times:
+    ``(N, E)``, one entry per sub-interval between the step's nodes and event), and whether a
+    terminal one stops the run inside it (at ``t_stop``).
+
+    Returns an :class:`_EventStep`."""
     n_ev = len(events)
     if not n_ev:
-        return st.events, jnp.zeros((0,), bool), jnp.zeros((0,), dtype), jnp.asarray(False), t1, jnp.asarray(False)
+        false = jnp.asarray(False)
+        return _EventStep(st.events, jnp.zeros((0, 0), bool), jnp.zeros((0, 0), dtype), false, t1, false, false,
+                          jnp.asarray(True))
     v0 = st.events.values
     v1 = event_values(events, t1, q1, p1, args, dtype)
+    nodes = node_times(pair, step, t1)
+    values = jnp.concatenate([v0[None], node_values(events, pair, step, args, nodes[1:-1], dtype), v1[None]])
+    n_sub = nodes.shape[0] - 1
     stopping = st.events.stopping >= 0
     index = jnp.arange(n_ev)
-    # on the re-step to a terminal zero, that zero is recorded at the step's end instead
-    found = crossings(events, v0, v1) & accept & ~(stopping & (index == st.events.stopping))
-    times = jnp.stack([
-        jax.lax.cond(found[j], lambda j=j: locate(pair, events[j], step, args, v0[j], v1[j]), lambda: t1)
-        for j in range(n_ev)
-    ])
+    # scipy's rule at t0: a zero exactly there counts (when the function then moves in the
+    # event's direction); at a later step point it was counted by the step that ended on it
+    at_t0 = (jnp.arange(n_sub) == 0)[:, None] & (st.n_accepted == 0)
+    found = crossings(events, values[:-1], values[1:], at_t0) & accept
+    # on the re-step to a terminal zero, that zero (in the last sub-interval) is recorded at the
+    # step's end instead
+    found = found & ~((jnp.arange(n_sub) == n_sub - 1)[:, None] & stopping & (index == st.events.stopping)[None, :])
+    times = locate_all(events, pair, step, args, nodes, values, found)
     terminal = jnp.asarray([ev.terminal for ev in events], jnp.int32)
-    is_stop = found & (terminal > 0) & (st.events.counts + 1 >= terminal) & ~stopping
-    j_stop = jnp.argmin(jnp.where(is_stop, direction * times, jnp.inf)).astype(jnp.int32)
+    # the k-th zero of an event with terminal=k stops the run, also when several are in the step
+    nth = st.events.counts[None, :] + jnp.cumsum(found, axis=0, dtype=jnp.int32)
+    is_stop = found & (terminal > 0)[None, :] & (nth >= terminal[None, :]) & ~stopping
+    first = jnp.argmin(jnp.where(is_stop, direction * times, jnp.inf).ravel())
+    j_stop = (first % n_ev).astype(jnp.int32)
+    t_first = times.ravel()[first]
     # the re-step onto a terminal zero located on the dense output ends where the event is not yet
     # zero to the step points' accuracy: one Newton step in time, and the step is taken again
     j_now = jnp.maximum(st.events.stopping, 0)
@@ -337,12 +357,31 @@ def _events(events, pair, direction, st: State, step: DenseStep, t1, q1, p1, acc
     again = stopping & accept & off & (t_newton != t_prev) & (st.event_refinements < MAX_EVENT_REFINEMENTS)
     stop = jnp.any(is_stop) | again
     kept = accept & ~stop
+    # a terminal zero exactly at the step's start (scipy's rule at t0) ends the run there, on the
+    # step point, without a step; the other zeros there are recorded with it
+    at_start = stop & ~again & (t_first == nodes[0])
+    others = (jnp.arange(n_sub * n_ev) != first).reshape(n_sub, n_ev)
+    record = found & (kept | (at_start & (times == nodes[0]) & others))
     new = EventState(
         jnp.where(kept, v1, v0),
-        st.events.counts + (found & kept).astype(jnp.int32),
+        st.events.counts + jnp.sum(record, axis=0, dtype=jnp.int32),
         jnp.where(stop & ~again, j_stop, st.events.stopping),
     )
-    return new, found & kept, times, stop, jnp.where(again, t_newton, times[j_stop]), again
+    return _EventStep(new, record, times, stop, jnp.where(again, t_newton, t_first), again, at_start,
+                      jnp.all(jnp.isfinite(values)))
+
+
+class _EventStep(NamedTuple):
+    """What :func:`_events` found in one attempt."""
+
+    state: EventState  # after the attempt
+    found: jax.Array  # (N, E) bool: zeros to record (sub-interval k between nodes, event j)
+    times: jax.Array  # (N, E) their times
+    stop: jax.Array  # bool: a terminal zero (or a refinement) turns the step into a re-step ...
+    t_stop: jax.Array  # ... ending here
+    again: jax.Array  # bool: the re-step is a refinement onto the terminal zero
+    at_start: jax.Array  # bool: the terminal zero is the step's start: the run ends there
+    finite: jax.Array  # bool: every value at the step's nodes is finite
 
 
 def _newton_time(events, pair, step: DenseStep, args, j, value, t1):
@@ -384,6 +423,9 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
     n, m = state.q.shape[-1], state.lam.shape[-1]
     n_ev = len(output.events)
     pair = method.pair
+    # an attempt records at most one zero per event and sub-interval between the step's nodes
+    n_sub = method.pieces * (method.stages - 1)
+    ev_capacity = max(length, n_sub * n_ev)
     direction = jnp.sign(controller.proposal(state.controller)[1])
     t_eval = jnp.full((1,), jnp.nan, dtype) if t_eval is None else jnp.asarray(t_eval, dtype)
     every = jnp.asarray(every, jnp.int32)
@@ -422,7 +464,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
         return (
             (st.result == Result.SUCCESSFUL) & ~controller.done(st.controller) & (attempts < max_attempts)
-            & (n_rows < capacity) & (n_events + n_ev <= length) & ~pending(st, n_rows)
+            & (n_rows < capacity) & (n_events + n_sub * n_ev <= ev_capacity) & ~pending(st, n_rows)
         )
 
     def body(carry):
@@ -444,21 +486,28 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
             dense = dense.at[at].set(pack_dense(a.info.dense), mode="drop")
             n_dense = n_dense + a.kept.astype(jnp.int32)
         if n_ev:
-            ev_rows, ev_idx, n_events = _write_events(ev_rows, ev_idx, n_events, a, st.events.stopping)
+            ev_rows, ev_idx, n_events = _write_events(ev_rows, ev_idx, n_events, a)
         return new, (rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events), attempts + 1
 
-    def _write_events(ev_rows, ev_idx, n_events, a: Attempt, stopping):
+    def _write_events(ev_rows, ev_idx, n_events, a: Attempt):
+        drop = ev_rows.shape[0]
         for j in range(n_ev):
-            q, p, lam = evaluate(pair, a.info.dense, a.times[j])
-            row = jnp.concatenate([a.times[j][None], q, p, lam])
-            at = jnp.where(a.found[j], n_events, ev_rows.shape[0])
-            ev_rows = ev_rows.at[at].set(row, mode="drop")
+            found, times = a.found[:, j], a.times[:, j]
+
+            def event_rows(times=times):
+                q, p, lam = jax.vmap(lambda tt: evaluate(pair, a.info.dense, tt))(times)
+                return jnp.concatenate([times[:, None], q, p, lam], axis=1)
+
+            # the states only where a zero was found (most steps have none); the buffers outside the cond
+            rows = jax.lax.cond(jnp.any(found), event_rows, lambda: jnp.zeros((n_sub, ev_rows.shape[1]), dtype))
+            at = jnp.where(found, n_events + jnp.cumsum(found, dtype=jnp.int32) - 1, drop)
+            ev_rows = ev_rows.at[at].set(rows, mode="drop")
             ev_idx = ev_idx.at[at].set(j, mode="drop")
-            n_events = n_events + a.found[j].astype(jnp.int32)
+            n_events = n_events + jnp.sum(found, dtype=jnp.int32)
         row = jnp.concatenate([a.t1[None], a.q1, a.p1, a.lam1])
-        at = jnp.where(a.final_event, n_events, ev_rows.shape[0])
+        at = jnp.where(a.final_event, n_events, drop)
         ev_rows = ev_rows.at[at].set(row, mode="drop")
-        ev_idx = ev_idx.at[at].set(stopping, mode="drop")
+        ev_idx = ev_idx.at[at].set(a.final_index, mode="drop")
         return ev_rows, ev_idx, n_events + a.final_event.astype(jnp.int32)
 
     rows = (jnp.full((capacity, 2 * n + m + 4), jnp.nan, dtype), jnp.zeros((capacity, 3), jnp.int32))
@@ -466,8 +515,8 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
     state, rows, n_rows = flush(state, rows, zero, state.last)
     d_size = dense_size(method.pieces, method.stages, n, m)
     dense = jnp.full((length, d_size), jnp.nan, dtype) if output.dense else None
-    ev_rows = jnp.full((length, 1 + 2 * n + m), jnp.nan, dtype) if n_ev else None
-    ev_idx = jnp.zeros((length,), jnp.int32) if n_ev else None
+    ev_rows = jnp.full((ev_capacity, 1 + 2 * n + m), jnp.nan, dtype) if n_ev else None
+    ev_idx = jnp.zeros((ev_capacity,), jnp.int32) if n_ev else None
     buf = (rows, n_rows, dense, zero, ev_rows, ev_idx, zero)
     state, buf, _ = jax.lax.while_loop(running, body, (state, buf, zero))
     (floats, ints), n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
@@ -632,7 +681,16 @@ def _run_chunk(problem, method, controller, output, packing, fresh, packed, star
 
 
 class IntegrateResult(NamedTuple):
-    """What :func:`integrate` returns (unpacks as ``q, p, lam, status``)."""
+    """What :func:`integrate` returns (unpacks as ``q, p, lam, status``).
+
+    Attributes
+    ----------
+    q, p : jax.Array, shape (n_steps + 1, n)
+        Time-major; row 0 is the initial value, the rows after a failed step are NaN.
+    lam : jax.Array, shape (n_steps + 1, m)
+    status : jax.Array, int32
+        The :class:`Result` code: 0 on success, else the first failure's code.
+    """
 
     q: jax.Array  # (n_steps + 1, n)
     p: jax.Array  # (n_steps + 1, n)
@@ -703,6 +761,22 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
     O(√n_steps) memory, and on the measured problems a faster gradient than keeping every
     step. The forward values do not depend on ``checkpoints``.
 
+    Parameters
+    ----------
+    problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+    method : LobattoIIIAIIIB
+    t0, h : float
+        Initial time and step size.
+    n_steps : int
+        Number of steps (static: it sets the output's shape).
+    q0, p0 : array_like, shape (n,)
+    lam0 : array_like, shape (m,)
+        Consistent initial values (:func:`consistent_lambda`, :func:`project_momenta`).
+    args : pytree, optional
+        Passed to the problem functions.
+    checkpoints : "auto", int or None
+        Reverse-mode memory: see above.
+
     Returns
     -------
     IntegrateResult
@@ -717,8 +791,34 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
                                args)
 
 
+def _check_concrete_times(t_span, t_eval) -> None:
+    """:func:`~lobattodae.solve`'s rules for ``t_span`` and ``t_eval`` of :func:`integrate_adaptive`,
+    where they are concrete numbers (outside jit/vmap/grad; traced ones are checked in the graph,
+    ``Result.INVALID_T_EVAL``): no run that returns rows at the wrong times."""
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((t_span, t_eval))):
+        return
+    from ._solve import _check_t_eval, _check_t_span  # solve's messages (solve imports this module)
+
+    t0, t1 = _check_t_span(t_span)
+    _check_t_eval(t_eval, t0, t1)
+
+
 class AdaptiveResult(NamedTuple):
-    """What :func:`integrate_adaptive` returns."""
+    """What :func:`integrate_adaptive` returns.
+
+    Attributes
+    ----------
+    t : jax.Array, shape (rows,)
+        The step points (row 0: t0) or the ``t_eval`` times.
+    q, p : jax.Array, shape (rows, n)
+    lam : jax.Array, shape (rows, m)
+    n_rows : jax.Array, int32
+        The valid rows (the rest are NaN).
+    n_steps, n_rejected : jax.Array, int32
+        Accepted steps and rejected attempts.
+    status : jax.Array, int32
+        The :class:`Result` code (``MAX_STEPS`` when ``max_steps`` ran out first).
+    """
 
     t: jax.Array  # (rows,) step points (row 0: t0) or the t_eval times
     q: jax.Array  # (rows, n)
@@ -735,19 +835,34 @@ def _integrate_adaptive(problem, method, controller, max_steps, differentiable, 
     output = Output(t_eval=t_eval is not None, step_to_t_eval=step_to)
     state = init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
     if differentiable:
-        return _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval,
-                              step_to)
+        out = _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval,
+                             step_to)
+        return out._replace(status=_t_eval_status(out.status, t0, t1, t_eval).astype(jnp.int32))
     length = max_steps if t_eval is None else t_eval.shape[0]
     state, chunk = run(problem, method, controller, output, state, args, length, 1, t_eval, max_attempts=max_steps)
     rec = _unpack_rows(*chunk.rows, q0.shape[-1], lam0.shape[-1])
     reached = controller.done(state.controller) | (t_eval is not None and chunk.n_rows == length)  # every row written
-    status = jnp.where((state.result == Result.SUCCESSFUL) & ~reached, Result.MAX_STEPS, state.result).astype(jnp.int32)
+    status = jnp.where((state.result == Result.SUCCESSFUL) & ~reached, Result.MAX_STEPS, state.result)
+    status = _t_eval_status(status, t0, t1, t_eval).astype(jnp.int32)
     if t_eval is None:
         return AdaptiveResult(
             _with_initial(t0, rec.t), _with_initial(q0, rec.q), _with_initial(p0, rec.p), _with_initial(lam0, rec.lam),
             chunk.n_rows + 1, state.n_accepted, state.n_rejected, status,
         )
     return AdaptiveResult(rec.t, rec.q, rec.p, rec.lam, chunk.n_rows, state.n_accepted, state.n_rejected, status)
+
+
+def _t_eval_status(status, t0, t1, t_eval):
+    """``status``, or ``Result.INVALID_T_EVAL`` for a run that would succeed with a ``t_eval``
+    that has a NaN, a time outside ``[t0, t1]`` or is not sorted in the direction of
+    integration (checked in the graph: under jit/vmap it cannot be refused before the run)."""
+    if t_eval is None:
+        return status
+    direction = jnp.where(t1 >= t0, 1.0, -1.0)
+    s = direction * (t_eval - t0)
+    valid = jnp.all(jnp.isfinite(t_eval)) & jnp.all((s >= 0) & (s <= direction * (t1 - t0)))
+    valid = valid & jnp.all(direction * jnp.diff(t_eval) >= 0)
+    return jnp.where((status == Result.SUCCESSFUL) & ~valid, Result.INVALID_T_EVAL, status)
 
 
 def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval,
@@ -810,6 +925,29 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
     choices are not differentiated (only the last step, clipped to end on ``t1``, moves with
     ``t_span``; ``docs/gradients.md``).
 
+    Parameters
+    ----------
+    problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+    method : LobattoIIIAIIIB
+    t_span : (float, float)
+    q0, p0 : array_like, shape (n,)
+    lam0 : array_like, shape (m,)
+        Consistent initial values.
+    args : pytree, optional
+    rtol, atol, first_step, max_step : float
+        As in :func:`~lobattodae.solve` (``first_step=0``: chosen automatically).
+    max_steps : int
+        Step attempts at most (static: it sizes the output without ``t_eval``).
+    t_eval : array_like, optional
+        Output times instead of step points.
+    controller : PIController or ReversibleStepSize
+    differentiable : bool
+        Run as a fixed-length scan, so that reverse mode works (see above).
+    checkpoints : "auto", int or None
+        Reverse-mode memory with ``differentiable=True``, as in :func:`integrate`.
+    t_eval_rows : {"step", "interpolate"}, optional
+        As in :func:`~lobattodae.solve`.
+
     Returns
     -------
     AdaptiveResult
@@ -817,13 +955,17 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
         points (row 0 is the initial value; ``max_steps + 1`` rows, those past ``n_rows`` NaN),
         with ``t_eval`` (an array, sorted in the direction of integration) one row per time.
         ``t_eval_rows`` as in :func:`~lobattodae.solve` (default: error-controlled steps end
-        on the ``t_eval`` times).
+        on the ``t_eval`` times). ``t_span`` and ``t_eval`` given as numbers are checked as
+        :func:`~lobattodae.solve` checks them (:class:`~lobattodae.LobattoDAEInputError`); traced
+        ones (under ``jit``/``vmap``) that have a NaN, a time outside ``t_span`` or are unsorted
+        give the status ``Result.INVALID_T_EVAL`` instead of success.
     """
     _check_count("max_steps", max_steps)
     checkpoints = resolve_checkpoints(checkpoints, max_steps)
     if not isinstance(differentiable, bool):
         raise LobattoDAEInputError(f"differentiable must be True or False; got {differentiable!r}.")
     step_to = steps_to_t_eval(t_eval_rows, controller, t_eval is not None)
+    _check_concrete_times(t_span, t_eval)
     method = for_error_control(method, controller)
     cast = functools.partial(jnp.asarray, dtype=jnp.float64)
     t0, t1 = (cast(x) for x in t_span)

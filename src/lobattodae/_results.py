@@ -37,6 +37,13 @@ class Result(enum.IntEnum):
         A terminal event ended the run (a success).
     EVENT_NOT_FINITE : 8
         An event function returned NaN or inf; the run stopped at that step point.
+    DENSITY_NOT_POSITIVE : 9
+        The step density of :class:`~lobattodae.ReversibleStepSize` (or its rate along the
+        flow) was not positive and finite; the run stopped at that step point.
+    INVALID_T_EVAL : 10
+        ``t_eval`` given to :func:`~lobattodae.integrate_adaptive` under a JAX transformation
+        (where it cannot be checked first) has a NaN, a time outside ``t_span`` or is not
+        sorted in the direction of integration; its rows are not to be trusted.
     """
 
     SUCCESSFUL = 0
@@ -48,6 +55,8 @@ class Result(enum.IntEnum):
     MAX_STEPS = 6
     EVENT = 7
     EVENT_NOT_FINITE = 8
+    DENSITY_NOT_POSITIVE = 9
+    INVALID_T_EVAL = 10
 
     @property
     def success(self) -> bool:
@@ -81,7 +90,17 @@ _MESSAGES = {
     Result.MAX_STEPS: "The step limit (max_steps) was reached before the end of the interval.",
     Result.EVENT: "A terminal event occurred.",
     Result.EVENT_NOT_FINITE: (
-        "An event function returned a non-finite value (NaN/inf) at the step point, so its zeros can no "
-        "longer be located; the run stopped there. Make the event function finite along the solution."
+        "An event function returned a non-finite value (NaN/inf) at the step point or a node of the step, so "
+        "its zeros can no longer be located; the run stopped there. Make the event function finite along the "
+        "solution."
+    ),
+    Result.DENSITY_NOT_POSITIVE: (
+        "The step density of ReversibleStepSize was not positive and finite there (σ <= 0, NaN or inf, or "
+        "its rate of change along the flow NaN/inf), so it sets no step size; the run stopped at that step "
+        "point. Give a density that is positive and finite along the solution (e.g. add a floor, σ + c)."
+    ),
+    Result.INVALID_T_EVAL: (
+        "t_eval has a NaN, a time outside t_span, or is not sorted in the direction of integration, so some "
+        "of its rows are missing or wrong; give finite times within t_span, sorted (increasing for t1 > t0)."
     ),
 }

@@ -8,6 +8,8 @@ initial values → compiled chunks of the loop, the first of which also makes th
 
 from __future__ import annotations
 
+import dataclasses
+import errno
 import math
 import os
 import signal
@@ -25,7 +27,7 @@ import numpy as np
 
 from . import _checkpoint
 from ._errors import LobattoDAEInputError, NewtonFailure
-from ._controllers import ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
+from ._controllers import MIN_RELATIVE_STEP, ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
 from ._dense import DenseOutput, dense_size, stacked
 from ._events import as_events
 from ._loop import CHUNK, Output, Record, State, init_host, run_host, start_host, steps_to_t_eval
@@ -215,7 +217,7 @@ class _Options:
                         f"{name} applies to adaptive steps; drop n_steps/dt to let the solver choose the steps, "
                         f"or drop {name}."
                     )
-            if max_step is not None and not math.isinf(float(max_step)):
+            if max_step is not None and not math.isinf(_positive_float("max_step", max_step, allow_inf=True)):
                 raise LobattoDAEInputError("max_step applies to adaptive steps; with constant steps use dt.")
             control, ctrl = ControlOptions(n=n), ConstantStepSize()
             if max_steps is not None:
@@ -233,6 +235,7 @@ class _Options:
             if first > abs(t1 - t0):
                 raise LobattoDAEInputError(f"first_step={first:g} is longer than the interval |t1 - t0| = {abs(t1 - t0):g}.")
             biggest = math.inf if max_step is None else _positive_float("max_step", max_step, allow_inf=True)
+            _check_resolvable_steps(t0, t1, first, biggest)
             control = ControlOptions(1, rtol, atol, first, biggest)
             max_steps = _check_max_steps(max_steps, t0, t1, biggest)
             ctrl = PIController() if controller is None else controller
@@ -307,6 +310,21 @@ def _check_max_steps(max_steps, t0: float, t1: float, max_step: float) -> int:
     return int(max_steps)
 
 
+def _check_resolvable_steps(t0: float, t1: float, first_step: float, max_step: float) -> None:
+    """Refuse up front a ``first_step`` or ``max_step`` below the smallest step the run can take,
+    ``MIN_RELATIVE_STEP·max(|t|, |t1 - t0|)`` (a shorter one ends the run as
+    ``STEP_SIZE_TOO_SMALL``, whose message would blame the problem)."""
+    span = abs(t1 - t0)
+    for name, value, largest_t in (("first_step", first_step, abs(t0)), ("max_step", max_step, max(abs(t0), abs(t1)))):
+        smallest = MIN_RELATIVE_STEP * max(largest_t, span)
+        if 0 < value < smallest:
+            raise LobattoDAEInputError(
+                f"{name}={value:g} is below the smallest step a run can take here, {MIN_RELATIVE_STEP:g}·max(|t|, "
+                f"|t1 - t0|) = {smallest:.3g} (a shorter step is lost in the round-off of t, and the run would end "
+                f"as STEP_SIZE_TOO_SMALL); use {name} >= {smallest:.3g}, or shift t_span towards 0."
+            )
+
+
 def check_writable(path: str, what: str) -> None:
     """Refuse up front a file that could not be written after the work (missing directory)."""
     directory = os.path.dirname(os.path.abspath(path))
@@ -346,6 +364,8 @@ def _check_t_eval(t_eval, t0: float, t1: float):
     if t_eval is None:
         return None
     try:
+        if isinstance(t_eval, (str, bytes)):
+            raise TypeError
         te = np.asarray(t_eval, dtype=np.float64)
     except (TypeError, ValueError):
         raise LobattoDAEInputError(f"t_eval must be a 1-D array of times; got {t_eval!r}.") from None
@@ -405,6 +425,8 @@ _MAX_CONSTANT_STEPS = 2**31 - 2
 
 def _check_t_span(t_span) -> tuple[float, float]:
     try:
+        if isinstance(t_span, (str, bytes)):  # "02" would be (0.0, 2.0)
+            raise TypeError
         t0, t1 = (float(x) for x in t_span)
     except (TypeError, ValueError):
         raise LobattoDAEInputError(f"t_span must be a pair (t0, t1) of numbers; got {t_span!r}.") from None
@@ -590,7 +612,12 @@ def solve(
         ``t_events``, ``q_events``, ... (one array per function). Attributes as in scipy:
         ``e.terminal`` (True, or stop at the k-th zero) and ``e.direction`` (> 0: rising
         zeros only, < 0: falling only). A terminal zero ends the run with a final step onto
-        it, so the final state satisfies the constraint to round-off.
+        it, so the final state satisfies the constraint to round-off. Sign changes are looked
+        for between the step's nodes (step points and stage points), so two zeros inside one
+        step are found when a node lies between them; closer pairs need a smaller
+        ``max_step``/``dt`` (:mod:`lobattodae._events`). A zero exactly at t0 counts as in
+        scipy (when the function then moves in the event's direction; a terminal one ends the
+        run at t0).
     save_every : int or 'final', optional
         Keep every k-th step point (and the last), or only the final one.
     lam0 : array_like, shape (m,), optional
@@ -625,6 +652,11 @@ def solve(
         kept (``save_every``), not with the number of saves. Keep (move, copy, delete) the
         file and its ``.rows`` directory together. Its directory must exist. A run without
         ``resume`` replaces an existing checkpoint (its segments are removed at the first save).
+        A save that fails (a full disk, a directory made read-only) stops the run with
+        :class:`~lobattodae.CheckpointWriteError`, which names the file and the fix and carries
+        the computed prefix as ``.solution`` (with ``throw=False`` that prefix is returned,
+        ``success`` False, the reason in ``message``); the checkpoint on disk stays the last
+        one committed, intact, and resumes.
     checkpoint_every : int, optional
     resume : bool
         Continue from ``checkpoint`` if it exists. It must come from the same run (problem
@@ -634,6 +666,20 @@ def solve(
     Returns
     -------
     Solution
+        The rows, how the run ended (``success``, ``status``, ``result``, ``message``) and
+        ``stats``.
+
+    Raises
+    ------
+    LobattoDAEInputError
+        Bad input, before any work; the subclass says which kind: :class:`ShapeError`,
+        :class:`ProblemFunctionError`, :class:`InconsistentInitialValuesError`,
+        :class:`SingularConstraintError`, :class:`CheckpointError`.
+    TypeError
+        ``method`` is not a :class:`LobattoIIIAIIIB`.
+    NewtonFailure
+        A step failed and ``throw`` is True (the default), with ``.step``, ``.t`` and
+        ``.reason``.
     """
     check_float64()
     _refuse_tracers(t_span=t_span, q0=q0, p0=p0, lam0=lam0, args=args, n_steps=n_steps, dt=dt, rtol=rtol, atol=atol)
@@ -702,6 +748,8 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
     failed = False
     start = time.perf_counter()
     last_saved = 0 if run is None else int(run.state.n_accepted)
+    saved_t = opt.t0 if run is None else float(controller.time(run.state.controller))
+    write_error, stopped_early = None, False  # an OSError of a checkpoint save; it stopped the run
     try:
         while not interrupted() and (run is None or not (_finished(opt, run.state) or _capped(opt, run.state))):
             if run is None:
@@ -729,8 +777,12 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
                 report(*_progress_numbers(opt, run.state))
             done = int(run.state.n_accepted)
             if opt.checkpoint and opt.checkpoint_every and done - last_saved >= opt.checkpoint_every:
-                run = _save(opt.checkpoint, meta, run)
-                last_saved = done
+                try:
+                    run = _save(opt.checkpoint, meta, run)
+                except (OSError, _checkpoint.CheckpointError) as exc:  # the disk, not the run: stop here
+                    write_error, stopped_early = exc, True
+                    break
+                last_saved, saved_t = done, float(controller.time(run.state.controller))
     except KeyboardInterrupt:  # a second Ctrl-C, or one outside the main thread's handler
         pass
     if run is None:  # interrupted before the first chunk
@@ -738,10 +790,56 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
     if isinstance(report, _ProgressBar):
         report.close()
     finished = _finished(opt, run.state)
-    if opt.checkpoint and (int(run.state.n_accepted) > last_saved or not finished):
-        run = _save(opt.checkpoint, meta, run)
+    if opt.checkpoint and write_error is None and (int(run.state.n_accepted) > last_saved or not finished):
+        try:
+            run = _save(opt.checkpoint, meta, run)
+        except (OSError, _checkpoint.CheckpointError) as exc:
+            write_error = exc
     elapsed = time.perf_counter() - start
-    return _assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failed, finished, throw, elapsed)
+    if write_error is None:
+        return _assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failed, finished, throw, elapsed)
+    sol = _assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failed, finished, False, elapsed)
+    return _write_failed(opt, sol, write_error, float(controller.time(run.state.controller)),
+                         last_saved if run.segments is not None else None, saved_t, stopped_early, throw)
+
+
+def _write_failed(opt: _Options, sol: Solution, exc: Exception, t_now: float, saved_steps: int | None,
+                  saved_t: float, stopped_early: bool, throw: bool) -> Solution:
+    """The run whose checkpoint could not be written: :class:`~lobattodae.CheckpointWriteError`
+    carrying the computed prefix (``throw``), or that prefix with the reason in its message.
+
+    A failed periodic save stops the run (``stopped_early``: the result is ``INTERRUPTED``,
+    ``success`` False; the disk would not take the next save either); a failed final save
+    leaves the run's own result. The checkpoint on disk is the last one committed
+    (``saved_steps`` steps; None: none of this run), intact."""
+    path = opt.checkpoint
+    code = getattr(exc, "errno", None)
+    if code in (errno.ENOSPC, getattr(errno, "EDQUOT", None)):
+        fix = "free space on that disk (or raise the quota)"
+    elif code in (errno.EROFS, errno.EACCES, errno.EPERM):
+        fix = "make the directory writable again (it may have been remounted read-only)"
+    else:
+        fix = "fix the cause"
+    cause = f"{exc.strerror} (errno {exc.errno})" if isinstance(exc, OSError) and exc.strerror else str(exc)
+    if saved_steps is None:
+        on_disk = "no checkpoint of this run was committed"
+        then = f"{fix} and run again, or choose another checkpoint path"
+    else:
+        on_disk = (f"the checkpoint on disk is intact and holds the run up to step {saved_steps:,} "
+                   f"(t = {saved_t:.6g})")
+        then = f"{fix} and continue from it with resume=True, or choose another checkpoint path"
+    where = f"t = {t_now:.6g}, {sol.stats['n_steps']:,} steps"
+    prefix = "in the error's .solution" if throw else "returned"
+    stopped = f"The run stopped there ({where})" if stopped_early else f"The run itself ended ({where})"
+    message = (f"cannot write the checkpoint '{path}': {cause}. {stopped}; {on_disk}. The computed prefix is "
+               f"{prefix}. To go on, {then}.")
+    # stopped early, the run is INTERRUPTED (success False): the message says why; a run that ended by
+    # itself keeps its result and message, and this one is added
+    own = not (stopped_early and sol.result == Result.INTERRUPTED)
+    sol = dataclasses.replace(sol, message=f"{sol.message} {message}" if own else message)
+    if throw:
+        raise _checkpoint.CheckpointWriteError(message, path=path, solution=sol, errno=code) from exc
+    return sol
 
 
 def _capped(opt: _Options, state: State) -> bool:
@@ -1030,6 +1128,8 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
         tf, hf = (float(x) for x in opt.controller.proposal(state.controller))
         tried = f" (after {run.recoveries} recovered steps; max_recoveries={opt.max_recoveries})" if opt.max_recoveries else ""
         message = f"Step {failed_step} (t = {tf:.6g}, h = {hf:.3g}) failed{tried}: {result.message}"
+        if result == Result.STEP_SIZE_TOO_SMALL:
+            message += _zero_scale_hint(opt, state)
         if throw:
             raise NewtonFailure(message, step=failed_step, t=tf, reason=result.name.lower())
     elif result == Result.MAX_STEPS:
@@ -1055,6 +1155,20 @@ def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Pr
         t, column(q0, out.q), column(p0, out.p), column(lam0, out.lam),
         bool(success), result, message, stats, problem, method, args, *events, sol,
     )
+
+
+def _zero_scale_hint(opt: _Options, state: State) -> str:
+    """The likely cause of a step size that collapsed under ``atol=0``: a component that is 0 at
+    the step point has the error scale ``atol + rtol·|y| = 0``, which no error passes."""
+    if not opt.adaptive or not isinstance(opt.controller, PIController) or float(opt.control.atol) != 0.0:
+        return ""
+    zero = [f"{name}[{i}]" for name, y in (("q", state.q), ("p", state.p)) for i in np.flatnonzero(np.asarray(y) == 0)]
+    if not zero:
+        return ""
+    shown = ", ".join(zero[:4]) + (", ..." if len(zero) > 4 else "")
+    return (f" Cause: atol=0 and {shown} = 0 there, so the error scale atol + rtol·|y| of that component is 0 "
+            "and no step with an error in it passes the test; give a positive atol (an absolute accuracy for "
+            "components that pass through or stay at 0, e.g. atol=1e-12).")
 
 
 def _event_lists(opt: _Options, run: _Progress, n: int, m: int):
