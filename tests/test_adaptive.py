@@ -105,6 +105,29 @@ def test_t_eval_rows_come_from_the_dense_output_when_asked(sleigh, method):
     np.testing.assert_array_equal(sol.q[-1], end.q[-1])
 
 
+def test_t_eval_rows_projected_onto_the_constraints(sleigh, method):
+    """t_eval_rows="project": interpolated rows moved onto φ = 0 (round-off, where interpolated
+    rows miss it by up to ~1e-7) with the consistent λ, as accurate as the interpolated rows;
+    integrate_adaptive makes the same rows in its while loop and in its scan."""
+    te = np.linspace(0.0, 2.0, 41)
+    sol = _solve(sleigh, method, rtol=1e-8, atol=1e-8, t_eval=te, t_eval_rows="project")
+    np.testing.assert_array_equal(sol.t, te)
+    assert np.max(sol.stats["constraint_residual"]) < 1e-14
+    q, p, lam = sleigh.exact(te)
+    assert np.max(np.abs(sol.q - q)) < 1e-6 and np.max(np.abs(sol.p - p)) < 1e-6 and np.max(np.abs(sol.lam - lam)) < 1e-5
+    hidden = [float(np.max(np.abs(L.hidden_constraint(sleigh.problem, t, qq, pp, ll, sleigh.args))))
+              for t, qq, pp, ll in zip(te, sol.q, sol.p, sol.lam)]
+    # the last row is the final step point itself (λ as the step computed it, ~1e-8 off the hidden constraint)
+    assert max(hidden[:-1]) < 1e-11, hidden
+    for differentiable in (False, True):
+        r = L.integrate_adaptive(sleigh.problem, method, sleigh.t_span, sleigh.q0, sleigh.p0, sleigh.lam0, sleigh.args,
+                                 rtol=1e-8, atol=1e-8, t_eval=te, t_eval_rows="project", max_steps=400,
+                                 differentiable=differentiable)
+        assert int(r.status) == 0 and int(r.n_rows) == len(te)
+        np.testing.assert_allclose(np.asarray(r.q), sol.q, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(r.p), sol.p, rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("s", [5])
 def test_t_eval_rows_are_step_points_by_default(sleigh, s):
     """Error-controlled steps end on the t_eval times: rows as accurate as step points and on the

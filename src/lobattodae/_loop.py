@@ -33,6 +33,7 @@ from ._dense import DenseStep, dense_size, empty_dense_step, evaluate, pack_dens
 from ._errors import LobattoDAEInputError
 from ._events import Event, EventState, crossings, event_values, locate_all, node_times, node_values
 from ._packing import StatePacking
+from ._projection import project_row
 from ._results import Result
 from ._doubling import for_error_control
 from ._stepper import LobattoIIIAIIIB, StepperState
@@ -75,6 +76,7 @@ class Output:
     dense: bool = False
     events: tuple[Event, ...] = ()
     step_to_t_eval: bool = False  # error-controlled steps end on the t_eval times (T_EVAL_ROWS)
+    project_t_eval: bool = False  # interpolated t_eval rows are moved onto the constraints (T_EVAL_ROWS)
 
 
 class Record(NamedTuple):
@@ -224,27 +226,37 @@ def clip_to_outputs(t, h, t_eval):
 
 #: How ``t_eval`` rows are made: ``"step"``, error-controlled steps end on the requested times
 #: (rows as accurate as step points, at the cost of the extra steps); ``"interpolate"``, rows
-#: from the dense output (order s between step points, no extra steps).
-T_EVAL_ROWS = ("step", "interpolate")
+#: from the dense output (order s between step points, no extra steps, φ violated by the
+#: interpolation error); ``"project"``, interpolated rows moved onto the constraints (ψ = 0,
+#: φ = 0 and the consistent λ: :func:`~lobattodae._projection.project_row`; order s, φ at round-off).
+T_EVAL_ROWS = ("step", "interpolate", "project")
 
 
-def steps_to_t_eval(t_eval_rows, controller, has_t_eval: bool) -> bool:
-    """Whether the steps end on the ``t_eval`` times: the one place that decides it. Default
-    (None): yes under error control, no for constant steps (they keep their grid) and the
-    reversible control (it would lose its symmetry)."""
-    if t_eval_rows is None:
-        return has_t_eval and isinstance(controller, PIController)
-    if t_eval_rows not in T_EVAL_ROWS:
+def t_eval_rows_mode(t_eval_rows, controller, has_t_eval: bool) -> str | None:
+    """How the ``t_eval`` rows are made (one of T_EVAL_ROWS; None without ``t_eval``): the one
+    place that decides it. Default (None): steps end on them under error control; constant steps
+    (they keep their grid) and the reversible control (it would lose its symmetry) interpolate."""
+    if t_eval_rows is not None and t_eval_rows not in T_EVAL_ROWS:
         raise LobattoDAEInputError(
-            "t_eval_rows must be 'step' (error-controlled steps end on the t_eval times) or 'interpolate' "
-            f"(rows from the dense output); got {t_eval_rows!r}."
+            "t_eval_rows must be 'step' (error-controlled steps end on the t_eval times), 'interpolate' (rows from "
+            f"the dense output) or 'project' (interpolated rows moved onto the constraints); got {t_eval_rows!r}."
         )
     if t_eval_rows == "step" and not isinstance(controller, PIController):
         raise LobattoDAEInputError(
             "t_eval_rows='step' needs error-controlled steps (rtol/atol with a PIController): constant steps keep "
-            "their grid and ReversibleStepSize its symmetry; use t_eval_rows='interpolate'."
+            "their grid and ReversibleStepSize its symmetry; use t_eval_rows='interpolate' or 'project'."
         )
-    return has_t_eval and t_eval_rows == "step"
+    if not has_t_eval:
+        return None
+    if t_eval_rows is None:
+        return "step" if isinstance(controller, PIController) else "interpolate"
+    return t_eval_rows
+
+
+def t_eval_output(mode: str | None, dense: bool = False, events: tuple[Event, ...] = ()) -> Output:
+    """The loop's :class:`Output` for the ``t_eval`` rows made as ``mode`` (:func:`t_eval_rows_mode`)."""
+    return Output(t_eval=mode is not None, dense=dense, events=events, step_to_t_eval=mode == "step",
+                  project_t_eval=mode == "project")
 
 
 def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: State, args,
@@ -448,6 +460,8 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
             te = t_eval[k]
             at_end = te == t_now
             q, p, lam = evaluate(pair, step, te)
+            if output.project_t_eval:
+                q, p, lam = project_row(problem, te, q, p, lam, args)
             q, p, lam = (jnp.where(at_end, a, b) for a, b in zip((st.q, st.p, st.lam), (q, p, lam)))
             floats, ints = _pack_row(_row(problem, args, te, q, p, lam, info))
             return k + 1, (rows[0].at[i].set(floats), rows[1].at[i].set(ints)), i + 1
@@ -618,7 +632,7 @@ def _state_packing(problem, method, controller, output, t0, t1, options, q0, p0,
     shapes (of the values and of ``args``)."""
     leaves, treedef = jax.tree_util.tree_flatten(args)
     key = (problem, method, controller, output, q0.shape, lam0.shape, treedef,
-           tuple((np.shape(x), np.result_type(x)) for x in leaves))
+           tuple((np.shape(x), x.dtype if hasattr(x, "dtype") else np.result_type(x)) for x in leaves))
     packing = _PACKINGS.get(key)
     if packing is None:
         shapes = jax.eval_shape(functools.partial(init_state, problem, method, controller, output),
@@ -830,13 +844,13 @@ class AdaptiveResult(NamedTuple):
     status: jax.Array  # int32 Result code (MAX_STEPS when max_steps ran out first)
 
 
-def _integrate_adaptive(problem, method, controller, max_steps, differentiable, checkpoints, step_to, t0, t1, q0, p0,
+def _integrate_adaptive(problem, method, controller, max_steps, differentiable, checkpoints, rows, t0, t1, q0, p0,
                         lam0, args, options, t_eval):
-    output = Output(t_eval=t_eval is not None, step_to_t_eval=step_to)
+    output = t_eval_output(rows)
     state = init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
     if differentiable:
         out = _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval,
-                             step_to)
+                             rows)
         return out._replace(status=_t_eval_status(out.status, t0, t1, t_eval).astype(jnp.int32))
     length = max_steps if t_eval is None else t_eval.shape[0]
     state, chunk = run(problem, method, controller, output, state, args, length, 1, t_eval, max_attempts=max_steps)
@@ -866,7 +880,7 @@ def _t_eval_status(status, t0, t1, t_eval):
 
 
 def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval,
-                   step_to):
+                   rows):
     """:func:`integrate_adaptive` through :func:`scan_run` (reverse-mode differentiable).
 
     The accepted steps are moved to the front of the output (a scatter, which differentiates
@@ -874,7 +888,7 @@ def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t
     loop, each from the step that contains its time.
     """
     state, steps = scan_run(problem, method, controller, state, args, max_steps, checkpoints, dense=t_eval is not None,
-                            t_eval=t_eval if step_to else None)
+                            t_eval=t_eval if rows == "step" else None)
     n_rows = jnp.sum(steps.kept.astype(jnp.int32))
     at = jnp.where(steps.kept, jnp.cumsum(steps.kept) - 1, max_steps)
 
@@ -896,6 +910,8 @@ def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t
     k = jnp.minimum(k, max_steps - 1)
     pick = jax.tree_util.tree_map(lambda x: x[k], dense)
     q, p, lam = jax.vmap(lambda st, tt: evaluate(method.pair, st, tt))(pick, t_eval)
+    if rows == "project":
+        q, p, lam = jax.vmap(lambda tt, *x: project_row(problem, tt, *x, args))(t_eval, q, p, lam)
     nan = functools.partial(jnp.where, inside[:, None])
     return AdaptiveResult(jnp.where(inside, t_eval, jnp.nan), nan(q, jnp.nan), nan(p, jnp.nan), nan(lam, jnp.nan),
                           jnp.sum(inside.astype(jnp.int32)), state.n_accepted, state.n_rejected, status)
@@ -945,7 +961,7 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
         Run as a fixed-length scan, so that reverse mode works (see above).
     checkpoints : "auto", int or None
         Reverse-mode memory with ``differentiable=True``, as in :func:`integrate`.
-    t_eval_rows : {"step", "interpolate"}, optional
+    t_eval_rows : {"step", "interpolate", "project"}, optional
         As in :func:`~lobattodae.solve`.
 
     Returns
@@ -964,7 +980,7 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
     checkpoints = resolve_checkpoints(checkpoints, max_steps)
     if not isinstance(differentiable, bool):
         raise LobattoDAEInputError(f"differentiable must be True or False; got {differentiable!r}.")
-    step_to = steps_to_t_eval(t_eval_rows, controller, t_eval is not None)
+    rows = t_eval_rows_mode(t_eval_rows, controller, t_eval is not None)
     _check_concrete_times(t_span, t_eval)
     method = for_error_control(method, controller)
     cast = functools.partial(jnp.asarray, dtype=jnp.float64)
@@ -972,6 +988,6 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
     options = ControlOptions(1, rtol, atol, first_step, max_step)
     t_eval = None if t_eval is None else cast(t_eval)
     return _integrate_adaptive_compiled(
-        problem, method, controller, max_steps, differentiable, checkpoints if differentiable else None, step_to, t0,
+        problem, method, controller, max_steps, differentiable, checkpoints if differentiable else None, rows, t0,
         t1, cast(q0), cast(p0), cast(lam0), args, options, t_eval,
     )

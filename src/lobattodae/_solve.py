@@ -30,7 +30,7 @@ from ._errors import LobattoDAEInputError, NewtonFailure
 from ._controllers import MIN_RELATIVE_STEP, ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
 from ._dense import DenseOutput, dense_size, stacked
 from ._events import as_events
-from ._loop import CHUNK, Output, Record, State, init_host, run_host, start_host, steps_to_t_eval
+from ._loop import CHUNK, Output, Record, State, init_host, run_host, start_host, t_eval_output, t_eval_rows_mode
 from ._results import Result
 from ._doubling import for_error_control
 from ._stepper import LobattoIIIAIIIB
@@ -247,8 +247,8 @@ class _Options:
         every = _check_save_every(save_every)
         if t_eval is not None and save_every not in (None, 1):
             raise LobattoDAEInputError("give t_eval (rows at given times) or save_every (every k-th step point), not both.")
-        output = Output(t_eval=t_eval is not None, dense=bool(dense_output), events=as_events(events),
-                        step_to_t_eval=steps_to_t_eval(t_eval_rows, ctrl, t_eval is not None))
+        output = t_eval_output(t_eval_rows_mode(t_eval_rows, ctrl, t_eval is not None), bool(dense_output),
+                               as_events(events))
         if chunk_size is not None and (isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1):
             raise LobattoDAEInputError(f"chunk_size must be a positive integer; got {chunk_size!r}.")
         if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
@@ -596,7 +596,7 @@ def solve(
         Output times (within ``t_span``, sorted in the direction of integration) instead of
         step points; memory is proportional to ``len(t_eval)``. ``t_eval=[t1]`` keeps the
         final state only.
-    t_eval_rows : {"step", "interpolate"}, optional
+    t_eval_rows : {"step", "interpolate", "project"}, optional
         How the ``t_eval`` rows are made. ``"step"`` (the default under error control): the
         steps are shortened to end on the requested times, so each row is a step point, as
         accurate as the run and on the constraint to round-off; a time between two steps
@@ -604,7 +604,9 @@ def solve(
         constant steps and ``ReversibleStepSize``, which keep their steps): rows from the
         dense output, no extra steps, accurate to order s between step points (at tight
         tolerances orders of magnitude less accurate than the step points, and ‖φ‖ at the
-        interpolation error; ``stats["constraint_residual"]`` reports it).
+        interpolation error; ``stats["constraint_residual"]`` reports it). ``"project"``: the
+        interpolated rows moved onto the constraints (ψ = 0 for position constraints, φ = 0,
+        λ the consistent multiplier), still of order s, with ‖φ‖ at round-off.
     dense_output : bool
         Keep every step's continuous extension: ``sol.sol(t) -> (q, p, lam)``.
     events : callable, Event, or list of them, optional
