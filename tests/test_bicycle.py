@@ -137,3 +137,17 @@ def test_nonlinear_runs_self_stable_and_weave(model, args):
             assert np.all(late < 0.2 * np.abs(sol.q[:, [3, 5]]).max(axis=0))
     assert rates[5.0][0] == pytest.approx(rates[5.0][1], rel=0.05)
     assert rates[3.0][1] > 0 and rates[3.0][0] == pytest.approx(rates[3.0][1], rel=0.1)
+
+
+@pytest.mark.slow
+def test_a_large_kick_with_constant_steps_does_not_fail_at_round_off(model, args):
+    """4.6 m/s, roll rate 1 rad/s, s = 4, h = 0.01: Newton's increments reach the round-off of the
+    bicycle's stage equations (~10-30 × tol) and then rise and fall with the noise; before the
+    stagnation test compared with the best increment so far, step 13 failed at the iteration
+    limit (2026-11-27)."""
+    import lobattodae
+
+    q0, p0 = bike.upright_state(model, 4.6, args, roll_rate=1.0)
+    sol = lobattodae.solve(model.problem, lobattodae.LobattoIIIAIIIB(stages=4), (0.0, 0.3), q0, p0, dt=0.01, args=args)
+    assert sol.success and np.max(sol.stats["newton_iterations"]) < 20
+    assert np.abs(model.constraint_residual(sol.t, sol.q, sol.p, args)).max() <= 1e-12

@@ -91,6 +91,7 @@ class NewtonState(NamedTuple):
     x: jax.Array
     k: jax.Array  # iterations done
     nrm_prev: jax.Array  # scaled norm of the last increment
+    nrm_best: jax.Array  # the smallest scaled increment of this solve so far
     theta_prev: jax.Array  # the contraction rate before that
     result: jax.Array  # -1 while running, else a Result code
     res_norm: jax.Array
@@ -110,6 +111,7 @@ def newton_init(x0, cache: JacobianCache) -> NewtonState:
         x=x0,
         k=jnp.asarray(0, jnp.int32),
         nrm_prev=jnp.asarray(0.0, dtype),
+        nrm_best=jnp.asarray(jnp.inf, dtype),
         theta_prev=jnp.asarray(1.0, dtype),
         result=jnp.asarray(-1, jnp.int32),
         res_norm=jnp.asarray(jnp.inf, dtype),
@@ -130,7 +132,8 @@ def converged(nrm, theta_est, rate_known, stale):
 
 
 def stagnated_at_roundoff(theta, nrm, first, stale):
-    """The iteration no longer contracts, but the increment is already within
+    """The iteration no longer contracts (``theta``: the increment over the smallest one of the
+    solve so far, so that noise that makes the increments go up and down counts), but the increment is already within
     STAGNATION_LEVEL·tol (ROUNDOFF_LEVEL·tol with a reused Jacobian, whose slow contraction
     is no evidence of round-off: it is refreshed instead, see ``needs_refresh``): the iterates
     are dominated by round-off."""
@@ -191,13 +194,17 @@ def _judge(st: NewtonState, x, dx, r, options: NewtonOptions) -> NewtonState:
     res_norm = jnp.max(jnp.abs(r))
     first = st.k == 0
     theta = jnp.where(first, 0.0, nrm / jnp.where(st.nrm_prev > 0, st.nrm_prev, 1.0))
+    # progress against the best increment so far: at round-off the increments go up and down with
+    # the noise, and a ratio to the last one alone can stay below THETA_STAGNATION for many iterations
+    best = jnp.minimum(st.nrm_best, st.nrm_prev)
+    progress = jnp.where(first, 0.0, nrm / jnp.where(best > 0, best, 1.0))
     stale = ~st.refresh
     # With a stale Jacobian one ratio of increments can grossly underestimate the rate: use the
     # larger of the last two, and require two.
     rate_known = jnp.logical_and(~first, jnp.logical_or(~stale, jnp.logical_and(st.k >= 2, st.stale)))
     theta_est = jnp.where(stale, jnp.maximum(theta, st.theta_prev), theta)
     finite = jnp.logical_and(jnp.isfinite(nrm), jnp.isfinite(res_norm))
-    ok = jnp.logical_or(converged(nrm, theta_est, rate_known, stale), stagnated_at_roundoff(theta, nrm, first, stale))
+    ok = jnp.logical_or(converged(nrm, theta_est, rate_known, stale), stagnated_at_roundoff(progress, nrm, first, stale))
     k = st.k + 1
     result = jnp.select(
         [~finite, ok, diverged(theta, first, stale), k >= options.max_iterations],
@@ -209,6 +216,7 @@ def _judge(st: NewtonState, x, dx, r, options: NewtonOptions) -> NewtonState:
         x=jnp.where(finite, x, st.x),
         k=k,
         nrm_prev=nrm,
+        nrm_best=jnp.where(first, nrm, jnp.minimum(best, nrm)),
         theta_prev=jnp.where(stale, theta, 1.0),
         result=result,
         res_norm=res_norm,
@@ -250,6 +258,7 @@ def fast_start(fn, params, st: NewtonState, options: NewtonOptions) -> NewtonSta
     # rate test uses the larger of the last two ratios)
     before = st._replace(
         x=x_prev, k=jnp.asarray(k - 1, jnp.int32), nrm_prev=nrm_1 if k >= 2 else st.nrm_prev,
+        nrm_best=jnp.minimum(nrm_1, nrm_2) if k >= 3 else st.nrm_best,
         theta_prev=nrm_1 / jnp.where(nrm_2 > 0, nrm_2, 1.0) if k >= 3 else one,
         refresh=jnp.asarray(False), stale=jnp.asarray(k >= 2),
     )
