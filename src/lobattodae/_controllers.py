@@ -366,6 +366,10 @@ class PIController(_TimeAndEnd):
     def stop_at(self, st: AdaptiveState, t_stop) -> AdaptiveState:
         return st._replace(t_end=t_stop, h=t_stop - st.t)
 
+    def step_to(self, st: AdaptiveState, t_target) -> AdaptiveState:
+        """The next step ends at ``t_target`` (an event's zero to land on); the end stays."""
+        return st._replace(h=t_target - st.t)
+
 
 # -- time-reversible control ------------------------------------------------------------------------
 #: Safeguard of the reversible control variable: ρ changes by at most this factor in one step.

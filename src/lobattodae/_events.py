@@ -13,9 +13,11 @@ zero of the dense output to round-off, so an event time is as accurate as the de
 step (a function that crosses and comes back) is found whenever a node lies between the two
 zeros, and every zero the nodes reveal is recorded (several per step and event). A
 *terminal* event does not take the dense value: the loop rejects the step and re-takes it to
-end exactly at the located time, so that the final state is a step point of the method
-(``φ = 0`` to round-off) and the run ends there; with ``terminal=k`` the k-th zero counts,
-also when several fall in one step.
+end exactly at the located time (refined by Newton in time), so that the final state is a
+step point of the method (``φ = 0`` to round-off) and the run ends there; with ``terminal=k``
+the k-th zero counts, also when several fall in one step. Under error control every other
+zero is landed on the same way and the run goes on from it (``Output.land_on_events``,
+:func:`lobattodae._loop._events`): its row is a step point, as accurate as the steps.
 
 Zeros at the nodes, as scipy's ``solve_ivp`` decides them: a zero exactly at ``t0`` is
 recorded when the function then moves in the event's ``direction`` (any way for 0), and a
@@ -139,11 +141,13 @@ def as_events(events) -> tuple[Event, ...]:
 
 class EventState(NamedTuple):
     """The event functions at the current step point, how often each has fired, and the
-    terminal event the loop is stepping to (-1: none)."""
+    event whose zero the loop is stepping to (-1: none): a terminal one (``stopping``, the run
+    ends there) or, under error control, any other (``landing``, the zero becomes a step point)."""
 
     values: jax.Array  # (E,)
     counts: jax.Array  # (E,) int32
     stopping: jax.Array  # int32
+    landing: jax.Array  # int32
 
 
 def event_values(events: tuple[Event, ...], t, q, p, args, dtype):

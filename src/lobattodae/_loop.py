@@ -52,9 +52,10 @@ __all__ = [
     "run",
 ]
 
-#: A terminal event's zero is refined (the step taken again onto ``t - v/v'``) until the
-#: Newton update in time is below this fraction of ``max(|t|, |h|)``, at most
-#: MAX_EVENT_REFINEMENTS times: the final state lies on the zero to the accuracy of a step point.
+#: An event's zero that the loop steps onto (a terminal one, or any under error control) is
+#: refined (the step taken again onto ``t - v/v'``) until the Newton update in time is below this
+#: fraction of ``max(|t|, |h|)``, at most MAX_EVENT_REFINEMENTS times: the state there lies on the
+#: zero to the accuracy of a step point.
 EVENT_TIME_RTOL = 1e-13
 MAX_EVENT_REFINEMENTS = 4
 #: Step attempts per compiled chunk in :func:`~lobattodae.solve` (a fixed length: a new number
@@ -77,6 +78,7 @@ class Output:
     events: tuple[Event, ...] = ()
     step_to_t_eval: bool = False  # error-controlled steps end on the t_eval times (T_EVAL_ROWS)
     project_t_eval: bool = False  # interpolated t_eval rows are moved onto the constraints (T_EVAL_ROWS)
+    land_on_events: bool = False  # error control: every zero becomes a step point (see _events)
 
 
 class Record(NamedTuple):
@@ -109,7 +111,7 @@ class State(NamedTuple):
     last: DenseStep
     events: EventState
     k_eval: jax.Array  # int32, the next t_eval row
-    event_refinements: jax.Array  # int32, re-steps onto a terminal zero after the first
+    event_refinements: jax.Array  # int32, re-steps onto the current event zero after the first
     # outcome and counters
     result: jax.Array  # int32 Result: SUCCESSFUL while running, else the first failure's code
     n_accepted: jax.Array  # int32
@@ -135,7 +137,7 @@ def init_state(problem, method: LobattoIIIAIIIB, controller, output: Output, t0,
         last=empty_dense_step(t0, q0, p0, lam0, method.stages, method.pieces),
         events=EventState(
             event_values(output.events, t0, q0, p0, args, dtype),
-            jnp.zeros((n_events,), jnp.int32), jnp.asarray(-1, jnp.int32),
+            jnp.zeros((n_events,), jnp.int32), jnp.asarray(-1, jnp.int32), jnp.asarray(-1, jnp.int32),
         ),
         k_eval=zero,
         event_refinements=zero,
@@ -209,6 +211,8 @@ class Attempt(NamedTuple):
     found: jax.Array  # (N, n_events) bool: zeros found in the step (N sub-intervals between its nodes)
     times: jax.Array  # (N, n_events) their times
     final_index: jax.Array  # int32: the terminal event whose zero ends the run (with final_event)
+    landed: jax.Array  # bool: kept, and the step ended on a zero of event ``landed_index`` (a step point)
+    landed_index: jax.Array  # int32
 
 
 def clip_to_outputs(t, h, t_eval):
@@ -253,10 +257,12 @@ def t_eval_rows_mode(t_eval_rows, controller, has_t_eval: bool) -> str | None:
     return t_eval_rows
 
 
-def t_eval_output(mode: str | None, dense: bool = False, events: tuple[Event, ...] = ()) -> Output:
-    """The loop's :class:`Output` for the ``t_eval`` rows made as ``mode`` (:func:`t_eval_rows_mode`)."""
+def t_eval_output(mode: str | None, dense: bool = False, events: tuple[Event, ...] = (), controller=None) -> Output:
+    """The loop's :class:`Output` for the ``t_eval`` rows made as ``mode`` (:func:`t_eval_rows_mode`);
+    under error control (a :class:`PIController`) the steps land on the events' zeros."""
     return Output(t_eval=mode is not None, dense=dense, events=events, step_to_t_eval=mode == "step",
-                  project_t_eval=mode == "project")
+                  project_t_eval=mode == "project",
+                  land_on_events=bool(events) and isinstance(controller, PIController))
 
 
 def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: State, args,
@@ -284,11 +290,14 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
     )
     accept, ctrl, result = controller.adapt(st.controller, problem, args, report)
     t1 = jnp.where(accept, controller.time(ctrl), t + h)
-    ev = _events(events, pair, direction, st, info.dense, t1, q1, p1, accept, args, dtype)
+    ev = _events(events, pair, direction, st, info.dense, t1, q1, p1, accept, args, dtype, output.land_on_events)
     ev_state, stop, again = ev.state, ev.stop, ev.again
     stopped = controller.stop_at(st.controller, ev.t_stop)
     ctrl = jax.tree_util.tree_map(lambda a, b: jnp.where(stop, a, b), stopped, ctrl)
-    kept = accept & ~stop
+    if output.land_on_events:
+        landing = controller.step_to(st.controller, ev.t_land)
+        ctrl = jax.tree_util.tree_map(lambda a, b: jnp.where(ev.land, a, b), landing, ctrl)
+    kept = accept & ~stop & ~ev.land
     finished = kept & controller.done(ctrl)
     final_event = (finished & (st.events.stopping >= 0)) | ev.at_start
     final_index = jnp.where(ev.at_start, ev_state.stopping, st.events.stopping)
@@ -312,7 +321,7 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
             counts=ev_state.counts + (final_event & (jnp.arange(n_ev) == final_index)).astype(jnp.int32)
         ),
         k_eval=st.k_eval,
-        event_refinements=st.event_refinements + again.astype(jnp.int32),
+        event_refinements=jnp.where(ev.begins, 0, st.event_refinements + again.astype(jnp.int32)),
         result=result,
         n_accepted=st.n_accepted + kept.astype(jnp.int32),
         n_rejected=st.n_rejected + (~accept).astype(jnp.int32),
@@ -322,34 +331,43 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
         max_drift=jnp.where(kept, jnp.maximum(st.max_drift, info.drift), st.max_drift),
     )
     return new, Attempt(t1, q1, p1, lam1, info, kept, finished, final_event, constraint, ev.found, ev.times,
-                        final_index)
+                        final_index, ev.landed, ev.target)
 
 
-def _events(events, pair, direction, st: State, step: DenseStep, t1, q1, p1, accept, args, dtype):
+def _events(events, pair, direction, st: State, step: DenseStep, t1, q1, p1, accept, args, dtype, land_on_zeros):
     """The event functions at the new point, the zeros found in the step (with their times:
-    ``(N, E)``, one entry per sub-interval between the step's nodes and event), and whether a
-    terminal one stops the run inside it (at ``t_stop``).
+    ``(N, E)``, one entry per sub-interval between the step's nodes and event), and whether the
+    step becomes a re-step onto one of them.
+
+    A terminal zero turns the step into a re-step that ends there (``stop``; the run ends). With
+    ``land_on_zeros`` (error control) so does every other zero (``land``): the run lands on it
+    and goes on, and its row is that step point, as accurate as the steps, instead of a value of
+    the dense output. Either re-step is refined by Newton in time (``again``) until it ends on the
+    zero to EVENT_TIME_RTOL.
 
     Returns an :class:`_EventStep`."""
     n_ev = len(events)
     if not n_ev:
         false = jnp.asarray(False)
+        none = jnp.asarray(-1, jnp.int32)
         return _EventStep(st.events, jnp.zeros((0, 0), bool), jnp.zeros((0, 0), dtype), false, t1, false, false,
-                          jnp.asarray(True))
+                          jnp.asarray(True), false, t1, false, none, false)
     v0 = st.events.values
     v1 = event_values(events, t1, q1, p1, args, dtype)
     nodes = node_times(pair, step, t1)
     values = jnp.concatenate([v0[None], node_values(events, pair, step, args, nodes[1:-1], dtype), v1[None]])
     n_sub = nodes.shape[0] - 1
     stopping = st.events.stopping >= 0
+    landing = st.events.landing >= 0
+    re_step = stopping | landing  # this attempt steps onto the zero of event ``target``
+    target = jnp.where(stopping, st.events.stopping, st.events.landing)
     index = jnp.arange(n_ev)
     # scipy's rule at t0: a zero exactly there counts (when the function then moves in the
     # event's direction); at a later step point it was counted by the step that ended on it
     at_t0 = (jnp.arange(n_sub) == 0)[:, None] & (st.n_accepted == 0)
     found = crossings(events, values[:-1], values[1:], at_t0) & accept
-    # on the re-step to a terminal zero, that zero (in the last sub-interval) is recorded at the
-    # step's end instead
-    found = found & ~((jnp.arange(n_sub) == n_sub - 1)[:, None] & stopping & (index == st.events.stopping)[None, :])
+    # on a re-step onto a zero, that zero (in the last sub-interval) is recorded at the step's end instead
+    found = found & ~((jnp.arange(n_sub) == n_sub - 1)[:, None] & re_step & (index == target)[None, :])
     times = locate_all(events, pair, step, args, nodes, values, found)
     terminal = jnp.asarray([ev.terminal for ev in events], jnp.int32)
     # the k-th zero of an event with terminal=k stops the run, also when several are in the step
@@ -358,29 +376,45 @@ def _events(events, pair, direction, st: State, step: DenseStep, t1, q1, p1, acc
     first = jnp.argmin(jnp.where(is_stop, direction * times, jnp.inf).ravel())
     j_stop = (first % n_ev).astype(jnp.int32)
     t_first = times.ravel()[first]
-    # the re-step onto a terminal zero located on the dense output ends where the event is not yet
-    # zero to the step points' accuracy: one Newton step in time, and the step is taken again
-    j_now = jnp.maximum(st.events.stopping, 0)
-    t_newton = jax.lax.cond(stopping & accept, lambda: _newton_time(events, pair, step, args, j_now, v1[j_now], t1),
+    if land_on_zeros:  # the first zero of an ordinary step, unless a terminal one comes first
+        # (a zero at the step's start, scipy's rule at t0, is a step point already)
+        is_land = found & ~is_stop & ~re_step & (times != nodes[0])
+        first_land = jnp.argmin(jnp.where(is_land, direction * times, jnp.inf).ravel())
+        t_land = times.ravel()[first_land]
+        land = jnp.any(is_land) & (direction * t_land < jnp.where(jnp.any(is_stop), direction * t_first, jnp.inf))
+        j_land = (first_land % n_ev).astype(jnp.int32)
+    else:
+        land, t_land, j_land = jnp.asarray(False), t1, jnp.asarray(-1, jnp.int32)
+    # the re-step onto a zero located on the dense output ends where the event is not yet zero to
+    # the step points' accuracy: one Newton step in time, and the step is taken again
+    j_now = jnp.maximum(target, 0)
+    t_newton = jax.lax.cond(re_step & accept, lambda: _newton_time(events, pair, step, args, j_now, v1[j_now], t1),
                             lambda: t1)
     t_prev = t1 - jnp.sum(step.h)
     t_newton = jnp.clip(t_newton, jnp.minimum(t_prev, 2 * t1 - t_prev), jnp.maximum(t_prev, 2 * t1 - t_prev))
     off = jnp.abs(t_newton - t1) > EVENT_TIME_RTOL * jnp.maximum(jnp.abs(t1), jnp.abs(t1 - t_prev))
-    again = stopping & accept & off & (t_newton != t_prev) & (st.event_refinements < MAX_EVENT_REFINEMENTS)
-    stop = jnp.any(is_stop) | again
-    kept = accept & ~stop
+    again = re_step & accept & off & (t_newton != t_prev) & (st.event_refinements < MAX_EVENT_REFINEMENTS)
+    stop = (jnp.any(is_stop) & ~land) | (again & stopping)
+    land = land | (again & landing)
+    kept = accept & ~stop & ~land
+    landed = landing & kept  # the re-step ended on its zero: a step point, recorded as the event's row
     # a terminal zero exactly at the step's start (scipy's rule at t0) ends the run there, on the
     # step point, without a step; the other zeros there are recorded with it
     at_start = stop & ~again & (t_first == nodes[0])
     others = (jnp.arange(n_sub * n_ev) != first).reshape(n_sub, n_ev)
     record = found & (kept | (at_start & (times == nodes[0]) & others))
+    # the zero landed on is exactly zero at its step point: the next step must not find it again
+    values_now = jnp.where(landed & (index == target), 0.0, v1)
+    begins = (stop | land) & ~again  # a new zero to step onto: its refinements are counted afresh
     new = EventState(
-        jnp.where(kept, v1, v0),
-        st.events.counts + jnp.sum(record, axis=0, dtype=jnp.int32),
+        jnp.where(kept, values_now, v0),
+        st.events.counts + jnp.sum(record, axis=0, dtype=jnp.int32) + (landed & (index == target)).astype(jnp.int32),
         jnp.where(stop & ~again, j_stop, st.events.stopping),
+        jnp.where(land & ~again, j_land, jnp.where(landed | stop, -1, st.events.landing)),
     )
     return _EventStep(new, record, times, stop, jnp.where(again, t_newton, t_first), again, at_start,
-                      jnp.all(jnp.isfinite(values)))
+                      jnp.all(jnp.isfinite(values)), land, jnp.where(again, t_newton, t_land), landed,
+                      target.astype(jnp.int32), begins)
 
 
 class _EventStep(NamedTuple):
@@ -391,9 +425,14 @@ class _EventStep(NamedTuple):
     times: jax.Array  # (N, E) their times
     stop: jax.Array  # bool: a terminal zero (or a refinement) turns the step into a re-step ...
     t_stop: jax.Array  # ... ending here
-    again: jax.Array  # bool: the re-step is a refinement onto the terminal zero
+    again: jax.Array  # bool: the re-step is a refinement onto the zero
     at_start: jax.Array  # bool: the terminal zero is the step's start: the run ends there
     finite: jax.Array  # bool: every value at the step's nodes is finite
+    land: jax.Array  # bool: a zero that does not stop the run turns the step into a re-step ...
+    t_land: jax.Array  # ... ending here
+    landed: jax.Array  # bool: the step is kept and ends on the zero of event ``target``
+    target: jax.Array  # int32: the event whose zero this attempt stepped onto (-1: none)
+    begins: jax.Array  # bool: a new zero to step onto (stop or land, not a refinement)
 
 
 def _newton_time(events, pair, step: DenseStep, args, j, value, t1):
@@ -437,7 +476,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
     pair = method.pair
     # an attempt records at most one zero per event and sub-interval between the step's nodes
     n_sub = method.pieces * (method.stages - 1)
-    ev_capacity = max(length, n_sub * n_ev)
+    ev_capacity = max(length, n_sub * n_ev + 1)
     direction = jnp.sign(controller.proposal(state.controller)[1])
     t_eval = jnp.full((1,), jnp.nan, dtype) if t_eval is None else jnp.asarray(t_eval, dtype)
     every = jnp.asarray(every, jnp.int32)
@@ -478,7 +517,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
         return (
             (st.result == Result.SUCCESSFUL) & ~controller.done(st.controller) & (attempts < max_attempts)
-            & (n_rows < capacity) & (n_events + n_sub * n_ev <= ev_capacity) & ~pending(st, n_rows)
+            & (n_rows < capacity) & (n_events + n_sub * n_ev + 1 <= ev_capacity) & ~pending(st, n_rows)
         )
 
     def body(carry):
@@ -518,11 +557,13 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
             ev_rows = ev_rows.at[at].set(rows, mode="drop")
             ev_idx = ev_idx.at[at].set(j, mode="drop")
             n_events = n_events + jnp.sum(found, dtype=jnp.int32)
+        # a zero the steps ended on (terminal, or landed on under error control): the step point itself
         row = jnp.concatenate([a.t1[None], a.q1, a.p1, a.lam1])
-        at = jnp.where(a.final_event, n_events, drop)
+        at_point = a.final_event | a.landed
+        at = jnp.where(at_point, n_events, drop)
         ev_rows = ev_rows.at[at].set(row, mode="drop")
-        ev_idx = ev_idx.at[at].set(a.final_index, mode="drop")
-        return ev_rows, ev_idx, n_events + a.final_event.astype(jnp.int32)
+        ev_idx = ev_idx.at[at].set(jnp.where(a.final_event, a.final_index, a.landed_index), mode="drop")
+        return ev_rows, ev_idx, n_events + at_point.astype(jnp.int32)
 
     rows = (jnp.full((capacity, 2 * n + m + 4), jnp.nan, dtype), jnp.zeros((capacity, 3), jnp.int32))
     zero = jnp.asarray(0, jnp.int32)

@@ -248,7 +248,7 @@ class _Options:
         if t_eval is not None and save_every not in (None, 1):
             raise LobattoDAEInputError("give t_eval (rows at given times) or save_every (every k-th step point), not both.")
         output = t_eval_output(t_eval_rows_mode(t_eval_rows, ctrl, t_eval is not None), bool(dense_output),
-                               as_events(events))
+                               as_events(events), ctrl)
         if chunk_size is not None and (isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1):
             raise LobattoDAEInputError(f"chunk_size must be a positive integer; got {chunk_size!r}.")
         if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
@@ -614,7 +614,9 @@ def solve(
         ``t_events``, ``q_events``, ... (one array per function). Attributes as in scipy:
         ``e.terminal`` (True, or stop at the k-th zero) and ``e.direction`` (> 0: rising
         zeros only, < 0: falling only). A terminal zero ends the run with a final step onto
-        it, so the final state satisfies the constraint to round-off. Sign changes are looked
+        it, so the final state satisfies the constraint to round-off; under error control
+        the steps land on every other zero too (its row a step point, as accurate as the
+        steps), with constant or reversible steps those rows come from the dense output. Sign changes are looked
         for between the step's nodes (step points and stage points), so two zeros inside one
         step are found when a node lies between them; closer pairs need a smaller
         ``max_step``/``dt`` (:mod:`lobattodae._events`). A zero exactly at t0 counts as in
