@@ -889,3 +889,30 @@ def test_run_model_from_a_mechanics_model(tmp_path, monkeypatch, capsys):
         assert code == 2 and "a mechanics model (Chaplygin sleigh (Lagrangian)) without initial values" in err
     finally:
         sys.modules.pop("mech_models_cli", None)
+
+
+def _import_in_a_fresh_process(tmp_path, env_changes, code="import jax, lobattodae; print(jax.config.jax_compilation_cache_dir)"):
+    env = {k: v for k, v in os.environ.items() if k not in ("LOBATTODAE_NO_CACHE", "LOBATTODAE_CACHE_DIR",
+                                                             "JAX_COMPILATION_CACHE_DIR")}
+    env.update(env_changes)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout.strip()
+
+
+def test_the_compilation_cache_is_on_by_default_in_the_user_cache_directory(tmp_path):
+    """Decided in #26: `import lobattodae` switches JAX's persistent cache on in the user cache
+    directory (compilations of a second or more, 1 GiB at most); LOBATTODAE_NO_CACHE=1 keeps it
+    off, a cache directory the process configured itself is left alone, and an unwritable
+    location leaves the cache off without an error."""
+    xdg = tmp_path / "xdg"
+    settings = "import jax, lobattodae; c = jax.config; print(c.jax_compilation_cache_dir, " \
+               "c.jax_persistent_cache_min_compile_time_secs, c.jax_compilation_cache_max_size)"
+    out = _import_in_a_fresh_process(tmp_path, {"XDG_CACHE_HOME": str(xdg)}, settings)
+    assert out == f"{xdg / 'lobattodae'} 1.0 {1 << 30}" and (xdg / "lobattodae").is_dir()
+    assert _import_in_a_fresh_process(tmp_path, {"XDG_CACHE_HOME": str(xdg), "LOBATTODAE_NO_CACHE": "1"}) == "None"
+    own = tmp_path / "own"
+    assert _import_in_a_fresh_process(tmp_path, {"JAX_COMPILATION_CACHE_DIR": str(own)}) == str(own)
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert _import_in_a_fresh_process(tmp_path, {"XDG_CACHE_HOME": str(blocker)}) == "None"

@@ -72,13 +72,10 @@ def __dir__():
     return sorted(set(globals()) | set(_SUBMODULES))
 
 
-# Opt-in persistent compilation cache for library users: set LOBATTODAE_CACHE_DIR.
-import os as _os  # noqa: E402
+# The persistent compilation cache, on by default (lobattodae._cache): LOBATTODAE_NO_CACHE=1 keeps it off.
+from ._cache import enable_default_cache as _enable_default_cache  # noqa: E402
 
-from ._cache import CACHE_ENV as _CACHE_ENV, cache_switched_off as _cache_switched_off  # noqa: E402
-
-if _os.environ.get(_CACHE_ENV) and not _cache_switched_off():
-    enable_compilation_cache(_os.environ[_CACHE_ENV])
+_enable_default_cache()
 
 __all__ = [
     "AdaptiveResult",
