@@ -4,7 +4,8 @@ On by default since 2026-11-27 (issue #26): ``import lobattodae`` switches it on
 cache directory (:func:`default_cache_dir`) for compilations of at least
 :data:`DEFAULT_MIN_COMPILE_TIME` seconds (lobattodae's step loops take seconds; small jitted
 functions of the user's own are not stored), at most :data:`DEFAULT_MAX_SIZE` bytes (least
-recently used entries are evicted). Measured: the first result of a new process on the knife
+recently used entries are evicted; JAX needs the ``filelock`` package for the bound, without it
+the cache is unbounded). Measured: the first result of a new process on the knife
 edge (s = 4, adaptive) 6.0-6.3 s without, 2.0-2.4 s with a warm cache (2 loaded cores).
 Off with ``LOBATTODAE_NO_CACHE=1``; left alone when the process has configured JAX's own cache
 directory; silently off when the directory cannot be created."""
@@ -62,7 +63,8 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None, *, min_
     min_compile_time : float
         Store only compilations that took at least this many seconds (0: every one).
     max_size : int
-        Bound on the cache's size in bytes, least recently used entries evicted (-1: none).
+        Bound on the cache's size in bytes, least recently used entries evicted (-1: none). JAX
+        needs the ``filelock`` package for it; without it the bound is dropped (-1).
 
     Returns
     -------
@@ -80,8 +82,16 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None, *, min_
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_time))
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    if max_size >= 0 and not _have_filelock():  # JAX bounds the size only with the filelock package
+        max_size = -1
     jax.config.update("jax_compilation_cache_max_size", int(max_size))
     return path
+
+
+def _have_filelock() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("filelock") is not None
 
 
 def enable_default_cache() -> Path | None:
