@@ -11,22 +11,15 @@ are exact and comparable with scipy's on the same ODE. The event functions read 
 shift from ``args``: every test shares the compiled loops (one per event list).
 """
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
 import lobattodae as L
+from helpers import FALL, FALL_Q0, FALL_P0
 
 METHOD = L.LobattoIIIAIIIB(stages=3)
-#: x'' = -1 with x(0) = 0, x'(0) = 1, and a second coordinate held still by φ = p[1]
-FALL = L.PartitionedDAE(
-    f=lambda t, q, p, a: p,
-    g=lambda t, q, p, lam, a: jnp.stack([-1.0 + 0.0 * q[0], lam[0]]),
-    phi=lambda t, q, p, a: p[1:2],
-    name="falling particle",
-)
-Q0, P0 = np.zeros(2), np.array([1.0, 0.0])
+Q0, P0 = FALL_Q0, FALL_P0
 
 
 def level(t, q, p, a):

@@ -12,18 +12,12 @@ import numpy as np
 import pytest
 
 import lobattodae as L
+from helpers import FALL, FALL_Q0, FALL_P0
 from lobattodae import _cli
 from lobattodae._controllers import phase_space_speed
 
 METHOD = L.LobattoIIIAIIIB(stages=3)
-#: x'' = -1 beside a coordinate held at rest by φ = p[1]: q[1] and p[1] stay exactly 0
-FALL = L.PartitionedDAE(
-    f=lambda t, q, p, a: p,
-    g=lambda t, q, p, lam, a: jnp.stack([-1.0 + 0.0 * q[0], lam[0]]),
-    phi=lambda t, q, p, a: p[1:2],
-    name="falling particle",
-)
-Q0, P0 = np.zeros(2), np.array([1.0, 0.0])
+Q0, P0 = FALL_Q0, FALL_P0
 
 
 # -- step bounds below the resolution of t ----------------------------------------------------------
