@@ -5,6 +5,9 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# Test processes (pytest-xdist, whole files per process: module fixtures are built once). Two
+# fit the 2-core CI machine; each needs up to ~4 GB of memory.
+WORKERS ?= 2
 
 .PHONY: demo test test-slow docs docs-serve install clean
 
@@ -20,10 +23,10 @@ demo: $(STAMP)
 	$(BIN)/lobattodae demo --plot convergence.png
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile
 
 test-slow: $(STAMP)
-	$(BIN)/python -m pytest -q -m slow
+	$(BIN)/python -m pytest -q -m slow -n $(WORKERS) --dist loadfile
 
 docs: $(STAMP)
 	$(BIN)/mkdocs build --strict
