@@ -6,8 +6,8 @@ rows computed so far.  The private loop carry is *not* the file format: the stat
 under readable names derived from its NamedTuple field names, and the layout of the files is
 written down here and guarded by :data:`VERSION` and :data:`STATE_FINGERPRINT`.
 
-Two parts: a small main file and append-only row segments (version 4)
-----------------------------------------------------------------------
+Two parts: a small main file and append-only row segments (since version 4)
+----------------------------------------------------------------------------
 A long run is checkpointed many times while its rows keep growing.  Version 3 rewrote all
 rows at every save, O(saves × rows) bytes in all (3.6 GiB for 10⁶ steps saved every 10⁴,
 terabytes for 10⁸).  Version 4 writes each row once:
@@ -39,8 +39,8 @@ checkpoint is reported, never read.  Because names follow contents, a save never
 listed segment with different rows, and a fresh run started over an old checkpoint (a new
 ``run``) leaves the old checkpoint intact until its own main file is committed.
 
-File schema (version 4)
------------------------
+File schema (since version 4; versions 5 and 6 changed only the loop state)
+---------------------------------------------------------------------------
 Every file is an uncompressed ``.npz`` archive (:func:`numpy.savez`, every member stored, no
 pickled objects: it loads with ``allow_pickle=False``) of ``.npy`` members named
 ``<key>.npy``.  The **main file** ``path`` holds exactly:
