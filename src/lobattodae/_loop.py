@@ -410,7 +410,9 @@ def _events(events, pair, direction, st: State, step: DenseStep, t1, q1, p1, acc
         jnp.where(kept, values_now, v0),
         st.events.counts + jnp.sum(record, axis=0, dtype=jnp.int32) + (landed & (index == target)).astype(jnp.int32),
         jnp.where(stop & ~again, j_stop, st.events.stopping),
-        jnp.where(land & ~again, j_land, jnp.where(landed | stop, -1, st.events.landing)),
+        # a re-step onto a zero that the controller rejects gives the landing up: the zero is still
+        # ahead, and the next step that contains it lands on it afresh
+        jnp.where(land & ~again, j_land, jnp.where(landed | stop | (landing & ~accept), -1, st.events.landing)),
     )
     return _EventStep(new, record, times, stop, jnp.where(again, t_newton, t_first), again, at_start,
                       jnp.all(jnp.isfinite(values)), land, jnp.where(again, t_newton, t_land), landed,
