@@ -1,0 +1,87 @@
+"""First result in a fresh process: import, compilation and run, as a new user meets them.
+
+Each case runs ``--repeats`` times in a new interpreter pinned to CPU 0 (``taskset``, when
+available), with one XLA thread, and prints the wall time from before ``import lobattodae`` to
+the result:
+
+* ``knife-edge``: the knife edge, s = 4, adaptive (rtol = atol = 1e-8), to the end of its span;
+* ``sleigh-event``: the sleigh, s = 4, adaptive, with a heading event (then, in the same
+  process, the same run without the event: the second compilation alone).
+
+``--cache cold`` (default) runs with ``LOBATTODAE_NO_CACHE=1``; ``--cache warm`` uses a
+persistent compilation cache in a temporary directory, filled by one run first.
+``--src DIR`` runs another checkout's ``src`` (e.g. a ``git worktree`` of an earlier commit), so
+that before and after are measured in one session, alternating.
+
+Run from the repository root::
+
+    .venv/bin/python benchmarks/first_result.py                       # ~1 min
+    .venv/bin/python benchmarks/first_result.py --src /tmp/old/src --src src
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+
+CASES = {
+    "knife-edge": """
+ex = L.examples.get_example("knife-edge")
+sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
+print(f"first result {time.perf_counter() - t0:.2f} s")
+""",
+    "sleigh-event": """
+ex = L.examples.get_example("sleigh")
+def heading(t, q, p, args): return q[2] - 0.5
+sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8,
+              events=heading)
+t1 = time.perf_counter()
+sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
+print(f"with the event {t1 - t0:.2f} s, then without it {time.perf_counter() - t1:.2f} s")
+""",
+}
+PREAMBLE = "import time; t0 = time.perf_counter()\nimport lobattodae as L\nL.set_cpu_threads(1)\n"
+
+
+def run(case: str, src: str, env: dict) -> str:
+    pin = ["taskset", "-c", "0"] if shutil.which("taskset") else []
+    proc = subprocess.run([*pin, sys.executable, "-c", PREAMBLE + CASES[case]], capture_output=True, text=True,
+                          env={**env, "PYTHONPATH": os.path.abspath(src)}, timeout=600)
+    if proc.returncode:
+        raise SystemExit(proc.stderr)
+    return proc.stdout.strip()
+
+
+def environment(base: dict, cache: str, warm: bool, src: str) -> dict:
+    """The child's environment: no persistent cache, or one of its own per source tree."""
+    if warm:
+        return dict(base, LOBATTODAE_CACHE_DIR=os.path.join(cache, os.path.abspath(src).strip("/")))
+    return dict(base, LOBATTODAE_NO_CACHE="1")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--case", choices=sorted(CASES), nargs="+", default=sorted(CASES))
+    parser.add_argument("--src", action="append", help="the src directory to import (repeatable; default src)")
+    parser.add_argument("--cache", choices=("cold", "warm"), default="cold")
+    parser.add_argument("--repeats", type=int, default=3)
+    opts = parser.parse_args()
+    sources = opts.src or ["src"]
+    warm = opts.cache == "warm"
+    base = {k: v for k, v in os.environ.items() if k not in ("LOBATTODAE_NO_CACHE", "LOBATTODAE_CACHE_DIR")}
+    with tempfile.TemporaryDirectory() as cache:
+        for case in opts.case:
+            if warm:
+                for src in sources:
+                    run(case, src, environment(base, cache, warm, src))  # fills the cache
+            for _ in range(opts.repeats):  # alternating between the sources
+                for src in sources:
+                    print(f"{case:<13} {src:<20} {opts.cache}: {run(case, src, environment(base, cache, warm, src))}")
+
+
+if __name__ == "__main__":
+    main()
