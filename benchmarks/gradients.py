@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 
 import lobattodae as L
-from lobattodae._loop import resolve_checkpoints
+from lobattodae._integrate import resolve_checkpoints
 from lobattodae.examples import get_example
 
 CASES = (("falling-disk-general", 3, 0.01), ("falling-disk-general", 4, 0.02), ("sleigh", 3, 0.01), ("sleigh", 5, 0.05))

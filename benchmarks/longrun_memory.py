@@ -10,7 +10,7 @@ process, which reports
 * its peak resident memory (``resource.getrusage(RUSAGE_SELF).ru_maxrss``), after compiling
   the loop on a short run (``warm``) and after the long run (``peak``);
 * the wall time of the long run, and the part of it spent in checkpoint saves;
-* the bytes its checkpoints wrote (every file write of ``lobattodae._checkpoint`` is counted,
+* the bytes its checkpoints wrote (every file write of ``lobattodae._io.atomic.write_npz`` is counted,
   main files and row segments apart; ``/proc/self/io`` ``wchar`` as a cross-check), the files
   left on disk, and what the single-file format of version 3 would have written (each save
   rewriting every row so far: Σ over saves of main file + rows so far);
@@ -79,12 +79,12 @@ def child(steps: int, every: int, stages: int, directory: str) -> dict:
     import numpy as np
 
     import lobattodae as L
-    from lobattodae import _checkpoint
+    from lobattodae._io import atomic, checkpoint
     from lobattodae.examples import get_example
 
     writes = {"main_bytes": 0, "main_files": 0, "segment_bytes": 0, "segment_files": 0, "row_data_bytes": 0,
               "segment_rows": 0, "committed_rows": [], "checkpoint_s": 0.0}
-    real, real_save = _checkpoint._write_atomic, _checkpoint.save
+    real, real_save = atomic.write_npz, checkpoint.save
 
     def counting(target, payload):
         real(target, payload)
@@ -106,8 +106,8 @@ def child(steps: int, every: int, stages: int, directory: str) -> dict:
         finally:
             writes["checkpoint_s"] += time.perf_counter() - start
 
-    _checkpoint._write_atomic = counting
-    _checkpoint.save = timed_save
+    atomic.write_npz = counting
+    checkpoint.save = timed_save
     ex = get_example("knife-edge")
     method = L.LobattoIIIAIIIB(stages=stages)
     path = os.path.join(directory, f"run-{every}.npz") if every else None
@@ -133,7 +133,7 @@ def child(steps: int, every: int, stages: int, directory: str) -> dict:
     if path:
         committed = writes.pop("committed_rows")
         per_row = writes["row_data_bytes"] / max(writes["segment_rows"], 1)
-        rows_dir = _checkpoint.rows_directory(path)
+        rows_dir = checkpoint.rows_directory(path)
         files = os.listdir(rows_dir)
         out.update(writes)
         out.update({

@@ -12,10 +12,19 @@ does not know. Before the docstrings are parsed, this rewrites, in the text only
 * doctest lines (``>>>``) -> a fenced ``pycon`` block, a paragraph ending in ``::`` -> ``:``;
 * a module constant documented by ``#:`` comments above it (Sphinx's convention) gets them
   as its docstring.
+
+It also checks the NumPy sections of the namespaces in :data:`CHECKED` (issue #28): every
+public function, public method of a public class, and class there must document each of its
+parameters in a ``Parameters`` section (a class: ``Parameters`` or ``Attributes``), have a
+``Returns`` (or ``Yields``) section if its body returns a value, and a ``Raises`` section if
+its body raises. A missing section is a warning on the ``mkdocs`` logger, so that
+``mkdocs build --strict`` fails; :func:`missing_sections` returns the same list for the tests.
 """
 
 from __future__ import annotations
 
+import ast
+import logging
 import re
 import textwrap
 
@@ -30,6 +39,16 @@ NAMESPACES = (
     "lobattodae.examples",
     "lobattodae.conditions",
     "lobattodae",
+)
+#: The public namespaces whose functions, methods and classes must have complete NumPy
+#: sections (:func:`missing_sections`).
+CHECKED = (
+    "lobattodae",
+    "lobattodae.examples",
+    "lobattodae.conditions",
+    "lobattodae.mechanics",
+    "lobattodae.mechanics.bicycle",
+    "lobattodae.mechanics.systems",
 )
 #: The private module behind each public namespace (for an object's home namespace).
 _HOMES = {
@@ -54,6 +73,8 @@ class SphinxToMarkdown(griffe.Extension):
         self.pkg = pkg
         self.public = self._public_names(pkg)
         self._walk(pkg, set())
+        for problem in missing_sections(pkg):
+            _LOGGER.warning("docstring: %s", problem)
 
     # -- what can be linked ----------------------------------------------------------------
     def _public_names(self, pkg: griffe.Module) -> dict[str, set[str]]:
@@ -187,3 +208,159 @@ def _doctest_blocks(text: str) -> str:
 
 def _indent(line: str) -> int:
     return len(line) - len(line.lstrip())
+
+
+# -- the sections check ----------------------------------------------------------------------
+_LOGGER = logging.getLogger("mkdocs.plugins.griffe_docstrings")
+#: Parameters that need no entry in ``Parameters``.
+_IMPLICIT = {"self", "cls"}
+
+
+def missing_sections(pkg: griffe.Module, namespaces=CHECKED) -> list[str]:
+    """What the docstrings of the public objects of ``namespaces`` lack, one line per problem
+    (``"lobattodae.conditions.b_error: no Returns section"``); empty when nothing is missing.
+
+    Parameters
+    ----------
+    pkg : griffe.Module
+        The loaded package (``lobattodae``).
+    namespaces : iterable of str, optional
+        Public namespaces, full dotted names inside ``pkg`` (default :data:`CHECKED`); each
+        name in a namespace's ``__all__`` is checked, and for a class its own public methods.
+
+    Returns
+    -------
+    list of str
+        The problems, sorted.
+    """
+    problems, seen = set(), set()
+    for ns in namespaces:
+        module = pkg if ns == pkg.path else pkg[ns[len(pkg.path) + 1:]]
+        for name in _export_names(module):
+            obj = _target(module[name])
+            if obj is None or obj.is_module or obj.is_attribute or id(obj) in seen:
+                continue
+            seen.add(id(obj))
+            problems.update(_check_object(obj, f"{ns}.{name}"))
+            if obj.is_class:
+                for member_name, member in obj.members.items():
+                    if member_name.startswith("_") or member.is_alias or not member.is_function:
+                        continue
+                    if "property" in member.labels:
+                        continue
+                    problems.update(_check_object(member, f"{ns}.{name}.{member_name}"))
+    return sorted(problems)
+
+
+def _export_names(module) -> list[str]:
+    """The names of ``module.__all__``; where griffe cannot read it statically (``conditions``
+    re-exports the ``__all__`` of its private module with a wildcard import), the module's
+    public members, which the wildcard import brought in."""
+    if module.exports is not None:
+        return [e if isinstance(e, str) else e.name for e in module.exports]
+    return [name for name in module.members if not name.startswith("_")]
+
+
+def _target(obj):
+    """``obj``, or the object an alias points to (None if it cannot be resolved)."""
+    if not obj.is_alias:
+        return obj
+    try:
+        return obj.final_target
+    except (griffe.AliasResolutionError, griffe.CyclicAliasError):
+        return None
+
+
+def _sections(obj) -> dict[str, list]:
+    """The parsed NumPy sections of ``obj``'s docstring: kind -> the section's items. Parsed
+    without griffe's own warnings: the check runs before griffe's dataclass extension has made
+    the constructors, so a dataclass's ``Parameters`` would be reported as unknown here (the
+    API pages parse the docstrings again, with the warnings, once the constructors exist)."""
+    if obj.docstring is None:
+        return {}
+    out: dict[str, list] = {}
+    for section in obj.docstring.parse("numpy", warnings=False):
+        kind = section.kind.value
+        value = section.value if isinstance(section.value, list) else [section.value]
+        out.setdefault(kind, []).extend(value)
+    return out
+
+
+def _body(obj) -> ast.AST | None:
+    """The function's own syntax tree (None where the source is not available)."""
+    try:
+        tree = ast.parse(textwrap.dedent(obj.source))
+    except (SyntaxError, OSError, TypeError, ValueError):
+        return None
+    return tree.body[0] if tree.body else None
+
+
+def _own_nodes(node):
+    """The nodes of a function's body, without those of the functions, lambdas and classes
+    it defines."""
+    stack = list(ast.iter_child_nodes(node))
+    while stack:
+        child = stack.pop()
+        if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)):
+            continue
+        yield child
+        stack.extend(ast.iter_child_nodes(child))
+
+
+def _documented(items) -> set[str]:
+    """The names of the parameters (or attributes) of a section, ``"a, b"`` split."""
+    names = set()
+    for item in items:
+        for name in str(getattr(item, "name", "")).split(","):
+            names.add(name.strip().lstrip("*"))
+    return names
+
+
+def _check_object(obj, path: str) -> list[str]:
+    if obj.docstring is None:
+        return [f"{path}: no docstring"]
+    sections = _sections(obj)
+    problems = []
+    if obj.is_class:
+        # A class documents its constructor in Parameters (each parameter of its __init__) or,
+        # when it is built by a factory or is a record (dataclass, NamedTuple), its fields in
+        # Attributes (each field).
+        params, fields = _class_parameters(obj)
+        if "parameters" in sections:
+            documented = _documented(sections["parameters"])
+            problems += [f"{path}: parameter {p!r} is not documented" for p in params if p not in documented]
+        elif "attributes" in sections:
+            documented = _documented(sections["attributes"])
+            problems += [f"{path}: field {f!r} is not documented" for f in fields if f not in documented]
+        elif params or fields:
+            problems.append(f"{path}: no Parameters (or Attributes) section")
+        return problems
+    params = [p.name for p in obj.parameters if p.name not in _IMPLICIT]
+    if params:
+        if "parameters" not in sections and "other parameters" not in sections:
+            problems.append(f"{path}: no Parameters section")
+        else:
+            documented = _documented(sections.get("parameters", []) + sections.get("other parameters", []))
+            problems += [f"{path}: parameter {p!r} is not documented" for p in params if p not in documented]
+    body = _body(obj)
+    if body is not None:
+        nodes = list(_own_nodes(body))
+        returns = any(isinstance(n, ast.Return) and n.value is not None for n in nodes)
+        if returns and "returns" not in sections and "yields" not in sections:
+            problems.append(f"{path}: no Returns section")
+        if any(isinstance(n, ast.Raise) for n in nodes) and "raises" not in sections:
+            problems.append(f"{path}: no Raises section")
+    return problems
+
+
+def _class_parameters(cls) -> tuple[list[str], list[str]]:
+    """``(constructor parameters, fields)``: the fields are the class's public annotated
+    attributes (those of a dataclass or a ``NamedTuple``); the constructor's parameters are
+    those of the class's own ``__init__``, or the fields where it has none."""
+    fields = [name for name, member in cls.members.items()
+              if not member.is_alias and member.is_attribute and not name.startswith("_")
+              and member.annotation is not None]
+    init = cls.members.get("__init__")
+    if init is not None and not init.is_alias and init.is_function:
+        return [p.name for p in init.parameters if p.name not in _IMPLICIT], fields
+    return fields, fields

@@ -395,20 +395,3 @@ def test_small_error_controlled_steps_keep_the_constraint_at_round_off(method):
     sol = _solve(ex, method, t_span=(0.0, 100.0), lam0=ex.lam0, rtol=3.16e-12, atol=3.16e-12, save_every="final")
     assert sol.success and sol.stats["n_steps"] > 5_000
     assert sol.stats["max_constraint_residual"] <= 1e-13
-
-
-@pytest.mark.parametrize("bad, match", [
-    (dict(t_eval_rows="nearest"), "t_eval_rows must be 'step'"),
-    (dict(t_eval_rows="step", controller=L.ReversibleStepSize()), "t_eval_rows='step' needs error-controlled steps"),
-])
-def test_ensemble_checks_t_eval_rows_as_solve_does(sleigh, method, bad, match):
-    """The same bad input, the same error, from solve, integrate_adaptive and ensemble."""
-    ex = sleigh
-    q0, p0, lam0 = (np.stack([x, x]) for x in (ex.q0, ex.p0, ex.lam0))
-    with pytest.raises(L.LobattoDAEInputError, match=match) as from_ensemble:
-        L.ensemble(ex.problem, method, q0, p0, lam0, ex.args, t_span=(0.0, 2.0), t_eval=[1.0], **bad)
-    with pytest.raises(L.LobattoDAEInputError, match=match) as from_solve:
-        _solve(ex, method, rtol=1e-8, t_eval=[1.0], **bad)
-    with pytest.raises(L.LobattoDAEInputError, match=match) as from_pure:
-        L.integrate_adaptive(ex.problem, method, (0.0, 2.0), ex.q0, ex.p0, ex.lam0, ex.args, t_eval=[1.0], **bad)
-    assert str(from_ensemble.value) == str(from_solve.value) == str(from_pure.value)

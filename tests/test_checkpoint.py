@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae import _checkpoint
+from lobattodae._io import atomic, checkpoint
 from lobattodae.examples import get_example
 
 N, CHUNK = 3000, 512
@@ -240,7 +240,7 @@ def _assert_same_solution(a, b, dense=False, events=False):
 
 
 def _segment_sizes(path):
-    directory = _checkpoint.rows_directory(path)
+    directory = checkpoint.rows_directory(path)
     return {f: os.path.getsize(os.path.join(directory, f)) for f in sorted(os.listdir(directory))}
 
 
@@ -256,7 +256,7 @@ def test_periodic_checkpoints_write_each_row_once(setup, tmp_path):
 
     def snapshot(done, total):  # the files after the second chunk's save, as they were then
         if done == 2 * CHUNK:
-            directory = _checkpoint.rows_directory(path)
+            directory = checkpoint.rows_directory(path)
             for f in os.listdir(directory):
                 st = os.stat(os.path.join(directory, f))
                 seen[f] = (st.st_ino, st.st_mtime_ns, open(os.path.join(directory, f), "rb").read())
@@ -268,7 +268,7 @@ def test_periodic_checkpoints_write_each_row_once(setup, tmp_path):
     many_sizes, once_sizes = _segment_sizes(path), _segment_sizes(once)
     assert len(many_sizes) == -(-N // CHUNK) and len(once_sizes) == 1
     assert len(seen) == 1  # the snapshot ran before the second save: it saw the first segment
-    directory = _checkpoint.rows_directory(path)
+    directory = checkpoint.rows_directory(path)
     for f, (ino, mtime, blob) in seen.items():
         st = os.stat(os.path.join(directory, f))
         assert (st.st_ino, st.st_mtime_ns) == (ino, mtime) and open(os.path.join(directory, f), "rb").read() == blob
@@ -286,7 +286,7 @@ def test_crash_between_segment_and_commit_resumes_bit_for_bit(setup, tmp_path, m
     orphan segment, and gives the uninterrupted run bit for bit."""
     ex, method, kw, ref = setup
     path = tmp_path / "run.npz"
-    real, mains = _checkpoint._write_atomic, []
+    real, mains = atomic.write_npz, []
 
     def dies_on_third_commit(target, payload):
         if os.fspath(target) == os.fspath(path):
@@ -295,7 +295,7 @@ def test_crash_between_segment_and_commit_resumes_bit_for_bit(setup, tmp_path, m
                 raise OSError("simulated crash before the commit")
         real(target, payload)
 
-    monkeypatch.setattr(_checkpoint, "_write_atomic", dies_on_third_commit)
+    monkeypatch.setattr(atomic, "write_npz", dies_on_third_commit)
     # the failed save ends the run with our error (tests/test_checkpoint_write.py), the cause chained
     with pytest.raises(L.CheckpointWriteError, match="simulated crash") as info:
         L.solve(ex.problem, method, (0.0, 30.0), ex.q0, ex.p0, checkpoint=path, checkpoint_every=CHUNK, **kw)
@@ -319,7 +319,7 @@ def test_damaged_row_segment_is_refused_with_one_clear_error(setup, tmp_path, da
             progress=_StopAfter(3), **kw)
     names = sorted(_segment_sizes(path))
     assert len(names) == 3
-    segment = os.path.join(_checkpoint.rows_directory(path), names[1])
+    segment = os.path.join(checkpoint.rows_directory(path), names[1])
     if damage == "missing":
         os.unlink(segment)
     else:
@@ -363,7 +363,7 @@ def test_dense_output_and_event_rows_are_checkpointed_incrementally(setup, tmp_p
     part = L.solve(ex.problem, method, (0.0, 30.0), ex.q0, ex.p0, checkpoint=path, checkpoint_every=CHUNK,
                    progress=_StopAfter(4), **kw)
     assert part.result == L.Result.INTERRUPTED
-    directory = _checkpoint.rows_directory(path)
+    directory = checkpoint.rows_directory(path)
     dense_rows, event_rows = [], []
     for f in sorted(os.listdir(directory)):
         with np.load(os.path.join(directory, f)) as seg:
@@ -400,7 +400,7 @@ def test_many_random_interrupts_resume_bit_for_bit(tmp_path):
     rng = np.random.default_rng(13)
     statuses = []
     for trial in range(200):
-        for f in (path, *[os.path.join(_checkpoint.rows_directory(path), x) for x in _segment_sizes(path)]):
+        for f in (path, *[os.path.join(checkpoint.rows_directory(path), x) for x in _segment_sizes(path)]):
             os.unlink(f)
         for attempt in range(int(rng.integers(1, 4))):
             part = _interrupted(lambda: solve(resume=True), float(rng.uniform(0.0, duration)))
@@ -416,14 +416,15 @@ def test_many_random_interrupts_resume_bit_for_bit(tmp_path):
 def test_state_schema_is_versioned():
     """Changing the loop State (a field, a dtype, a rank) without bumping the checkpoint VERSION
     and recording the new fingerprint fails here."""
-    from lobattodae import _checkpoint
     from lobattodae._controllers import ConstantStepSize, ControlOptions
-    from lobattodae._loop import Output, init_host
+    from lobattodae._chunks import init_host
+    from lobattodae._io.fingerprint import schema_fingerprint
+    from lobattodae._loop import Output
 
     ex = get_example("falling-disk-general")
     f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
     state, _ = init_host(ex.problem, L.LobattoIIIAIIIB(stages=4), ConstantStepSize(), Output(), f64(0.0), f64(1.0),
                          ControlOptions(n=10), f64(ex.q0), f64(ex.p0), f64(ex.lam0), ex.args)
-    assert _checkpoint.schema_fingerprint(state) == _checkpoint.STATE_FINGERPRINT, (
-        "the loop State changed: bump _checkpoint.VERSION and record the new STATE_FINGERPRINT"
+    assert schema_fingerprint(state) == checkpoint.STATE_FINGERPRINT, (
+        "the loop State changed: bump lobattodae._io.checkpoint.VERSION and record the new STATE_FINGERPRINT"
     )

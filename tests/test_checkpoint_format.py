@@ -1,4 +1,4 @@
-"""The checkpoint file format (lobattodae._checkpoint): schema, incremental row segments,
+"""The checkpoint file format (lobattodae._io.checkpoint): schema, incremental row segments,
 atomic writes, clear errors, fingerprints."""
 
 import functools
@@ -19,8 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from lobattodae import _checkpoint as C
 from lobattodae._errors import LobattoDAEInputError
+from lobattodae._io import atomic
+from lobattodae._io import checkpoint as C
+from lobattodae._io import fingerprint as F
 
 from helpers import assert_bitwise_equal
 
@@ -202,7 +204,7 @@ def test_file_schema_is_explicit(tmp_path):
 
 
 def test_state_fields_are_dotted_names():
-    assert C.state_fields(make_state(n=4)) == [
+    assert F.state_fields(make_state(n=4)) == [
         ("y.q", "float64", (4,)),
         ("y.p", "float64", (4,)),
         ("stepper.jacobian.inverse", "float64", (4, 4)),
@@ -211,7 +213,7 @@ def test_state_fields_are_dotted_names():
         ("step", "int32", ()),
     ]
     struct = jax.ShapeDtypeStruct((4,), jnp.float64)
-    assert C.state_fields(Y(struct, np.zeros(2, np.int32))) == [("q", "float64", (4,)), ("p", "int32", (2,))]
+    assert F.state_fields(Y(struct, np.zeros(2, np.int32))) == [("q", "float64", (4,)), ("p", "int32", (2,))]
 
 
 def test_safe_dtype_casts_are_applied_on_load(tmp_path):
@@ -604,10 +606,10 @@ class RenamedState(NamedTuple):
 
 
 def test_schema_fingerprint():
-    fp = C.schema_fingerprint(make_state(n=3))
+    fp = F.schema_fingerprint(make_state(n=3))
     assert re.fullmatch(r"[0-9a-f]{16}", fp)
-    assert C.schema_fingerprint(make_state(n=3)) == fp
-    assert C.schema_fingerprint(make_state(n=7)) == fp  # sizes are not part of the schema
+    assert F.schema_fingerprint(make_state(n=3)) == fp
+    assert F.schema_fingerprint(make_state(n=7)) == fp  # sizes are not part of the schema
     s = make_state()
     changed = [
         RenamedState(s.y, s.stepper, s.step),  # renamed field
@@ -617,17 +619,17 @@ def test_schema_fingerprint():
         s._replace(y=s.y._replace(p=s.stepper.slopes)),  # rank of one field
         Y(s.y.q, s.y.p),  # removed fields
     ]
-    fps = {C.schema_fingerprint(t) for t in changed}
+    fps = {F.schema_fingerprint(t) for t in changed}
     assert fp not in fps and len(fps) == len(changed)
     assert C.STATE_FINGERPRINT is None or re.fullmatch(r"[0-9a-f]{16}", C.STATE_FINGERPRINT)
 
 
 def test_fingerprint_arrays():
     a, b = np.arange(3.0), {"k": np.int32(2), "v": (1.5, jnp.ones(2))}
-    fp = C.fingerprint_arrays(a, b)
+    fp = F.fingerprint_arrays(a, b)
     assert re.fullmatch(r"[0-9a-f]{64}", fp)
-    assert C.fingerprint_arrays(np.arange(3.0), {"k": np.int32(2), "v": (1.5, jnp.ones(2))}) == fp
-    assert C.fingerprint_arrays(jnp.arange(3.0), b) == fp  # numpy and JAX arrays alike
+    assert F.fingerprint_arrays(np.arange(3.0), {"k": np.int32(2), "v": (1.5, jnp.ones(2))}) == fp
+    assert F.fingerprint_arrays(jnp.arange(3.0), b) == fp  # numpy and JAX arrays alike
     different = [
         (a + np.array([0, 0, 1e-12]), b),  # values
         (a.astype(np.float32), b),  # dtype
@@ -637,9 +639,9 @@ def test_fingerprint_arrays():
         (np.array([-0.0, 1.0, 2.0]), b),  # bit-exact
     ]
     for args in different:
-        assert C.fingerprint_arrays(*args) != fp
+        assert F.fingerprint_arrays(*args) != fp
     with pytest.raises(TypeError, match="cannot fingerprint"):
-        C.fingerprint_arrays(object())
+        F.fingerprint_arrays(object())
 
 
 def square(x):
@@ -650,21 +652,21 @@ def test_fingerprint_callable_basics():
     f = lambda x: x + 1  # noqa: E731
     g = lambda x: x + 2  # noqa: E731
     h = lambda x: x * 2  # noqa: E731
-    assert C.fingerprint_callable(f) == C.fingerprint_callable(f)
-    assert len({C.fingerprint_callable(fn) for fn in (f, g, h)}) == 3
-    fp = C.fingerprint_callable(square)
+    assert F.fingerprint_callable(f) == F.fingerprint_callable(f)
+    assert len({F.fingerprint_callable(fn) for fn in (f, g, h)}) == 3
+    fp = F.fingerprint_callable(square)
     assert fp.startswith(__name__ + ".square#") and re.fullmatch(r".*#[0-9a-f]{16}", fp)
     for _ in range(2000):  # the interpreter specialises hot bytecode; the fingerprint must not change
         square(3.0)
-    assert C.fingerprint_callable(square) == fp
+    assert F.fingerprint_callable(square) == fp
 
 
 def test_fingerprint_callable_sees_closures_defaults_and_nested_code():
     def make(k):
         return lambda x: x + k
 
-    assert C.fingerprint_callable(make(1.0)) == C.fingerprint_callable(make(1.0))
-    assert C.fingerprint_callable(make(1.0)) != C.fingerprint_callable(make(2.0))
+    assert F.fingerprint_callable(make(1.0)) == F.fingerprint_callable(make(1.0))
+    assert F.fingerprint_callable(make(1.0)) != F.fingerprint_callable(make(2.0))
 
     def outer1(x):
         def inner(y):
@@ -677,14 +679,14 @@ def test_fingerprint_callable_sees_closures_defaults_and_nested_code():
         return inner(x)
 
     assert outer1.__code__.co_code == outer2.__code__.co_code
-    assert C.fingerprint_callable(outer1).split("#")[1] != C.fingerprint_callable(outer2).split("#")[1]
+    assert F.fingerprint_callable(outer1).split("#")[1] != F.fingerprint_callable(outer2).split("#")[1]
 
     def with_default(x, c=1.0):
         return x * c
 
-    fp = C.fingerprint_callable(with_default)
+    fp = F.fingerprint_callable(with_default)
     with_default.__defaults__ = (2.0,)
-    assert C.fingerprint_callable(with_default) != fp
+    assert F.fingerprint_callable(with_default) != fp
 
 
 @dataclass(frozen=True)
@@ -698,28 +700,28 @@ def test_fingerprint_callable_of_objects():
     f1 = lambda q: -q  # noqa: E731
     f2 = lambda q: q  # noqa: E731
     p1, p2 = Problem(f1, square), Problem(f2, square)
-    assert C.fingerprint_callable(p1) == C.fingerprint_callable(Problem(f1, square))
-    assert C.fingerprint_callable(p1) != C.fingerprint_callable(p2)
-    assert C.fingerprint_callable(p1) != C.fingerprint_callable(Problem(f1, square, name="q"))
-    assert C.fingerprint_callable(p1).startswith(__name__ + ".Problem#")
+    assert F.fingerprint_callable(p1) == F.fingerprint_callable(Problem(f1, square))
+    assert F.fingerprint_callable(p1) != F.fingerprint_callable(p2)
+    assert F.fingerprint_callable(p1) != F.fingerprint_callable(Problem(f1, square, name="q"))
+    assert F.fingerprint_callable(p1).startswith(__name__ + ".Problem#")
 
     part = functools.partial(square, 2.0)
-    assert C.fingerprint_callable(part) == C.fingerprint_callable(functools.partial(square, 2.0))
-    assert C.fingerprint_callable(part) != C.fingerprint_callable(functools.partial(square, 3.0))
-    assert C.fingerprint_callable(jax.jit(square)) == C.fingerprint_callable(jax.jit(square))
-    assert C.fingerprint_callable(np.sin) != C.fingerprint_callable(np.cos)
+    assert F.fingerprint_callable(part) == F.fingerprint_callable(functools.partial(square, 2.0))
+    assert F.fingerprint_callable(part) != F.fingerprint_callable(functools.partial(square, 3.0))
+    assert F.fingerprint_callable(jax.jit(square)) == F.fingerprint_callable(jax.jit(square))
+    assert F.fingerprint_callable(np.sin) != F.fingerprint_callable(np.cos)
 
     def rec(n):  # recursion through a closure must terminate
         return 1 if n == 0 else n * rec(n - 1)
 
-    C.fingerprint_callable(rec)
+    F.fingerprint_callable(rec)
 
 
 def test_fingerprint_callable_is_stable_across_processes(tmp_path):
     """No hash randomisation (frozenset constants, dict order) leaks into the fingerprint."""
     script = tmp_path / "fp.py"
     script.write_text(textwrap.dedent("""
-        from lobattodae._checkpoint import fingerprint_callable, fingerprint_arrays
+        from lobattodae._io.fingerprint import fingerprint_callable, fingerprint_arrays
 
         def f(x, mode="a"):
             return x if mode in {"a", "b", "c", "d", "e", "f", "g"} else -x
@@ -848,14 +850,14 @@ def test_crash_between_segment_and_main_file_keeps_the_last_commit(tmp_path, mon
     path = tmp_path / "run.npz"
     parts = [make_rows(k=4, seed=i) for i in range(4)]
     saved = append_saves(path, parts[:2])
-    real = C._write_atomic
+    real = atomic.write_npz
 
     def crash_on_main(target, payload):
         if os.fspath(target) == os.fspath(path):
             raise KeyboardInterrupt  # killed after the segment, before the commit
         real(target, payload)
 
-    monkeypatch.setattr(C, "_write_atomic", crash_on_main)
+    monkeypatch.setattr(atomic, "write_npz", crash_on_main)
     with pytest.raises(KeyboardInterrupt):
         C.save(path, meta=META, counters={"done": 99}, state=make_state(), rows=parts[2], previous=saved[-1])
     monkeypatch.undo()
@@ -873,8 +875,8 @@ def test_fresh_checkpoint_leaves_the_old_one_intact_until_it_commits(tmp_path, m
     path = tmp_path / "run.npz"
     old = [make_rows(k=3, seed=i) for i in range(3)]
     append_saves(path, old)
-    real = C._write_atomic
-    monkeypatch.setattr(C, "_write_atomic",
+    real = atomic.write_npz
+    monkeypatch.setattr(atomic, "write_npz",
                         lambda target, payload: (_ for _ in ()).throw(OSError("disk full"))
                         if os.fspath(target) == os.fspath(path) else real(target, payload))
     with pytest.raises(OSError, match="disk full"):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae import _checkpoint
+from lobattodae._io import atomic
 from lobattodae.examples import get_example
 
 N, CHUNK, EVERY = 96, 16, 16
@@ -28,7 +28,7 @@ def setup():
 
 def _failing_writes(monkeypatch, after: int, code: int):
     """Let ``after`` file writes of checkpoint saves succeed, then fail every one with ``code``."""
-    real, calls = _checkpoint._write_atomic, {"n": 0}
+    real, calls = atomic.write_npz, {"n": 0}
 
     def write(target, payload):
         calls["n"] += 1
@@ -36,7 +36,7 @@ def _failing_writes(monkeypatch, after: int, code: int):
             raise OSError(code, os.strerror(code), target)
         return real(target, payload)
 
-    monkeypatch.setattr(_checkpoint, "_write_atomic", write)
+    monkeypatch.setattr(atomic, "write_npz", write)
 
 
 def _solve(setup, path, **kw):

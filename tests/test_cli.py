@@ -18,7 +18,7 @@ import pytest
 import lobattodae as L
 from lobattodae import _cli
 from lobattodae._cli import DEMO_EXAMPLE, build_parser, main
-from lobattodae._loop import CHUNK as RUN_CHUNK
+from lobattodae._chunks import CHUNK as RUN_CHUNK
 from lobattodae.examples import EXAMPLES, get_example, list_examples
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -614,15 +614,17 @@ def test_demo_defaults():
         (["tableau", "two"], ["expected a positive integer", "'two'"]),
         (["convergence", "--example", "knife-edge", "--stages", "1"], ["stages must be >= 2"]),
         (["run", "--example", "particle", "--stages", "1", "--n-steps", "5"], ["stages must be >= 2"]),
-        (["run", "--example", "particle", "--dt", "-0.1"], ["--dt", "positive finite number", "-0.1"]),
-        (["run", "--example", "particle", "--dt=-0.1"], ["--dt", "positive finite number"]),
-        (["run", "--example", "particle", "--dt", "0"], ["--dt", "positive finite number"]),
-        (["run", "--example", "particle", "--dt", "nan"], ["--dt", "positive finite number"]),
-        (["run", "--example", "particle", "--n-steps", "0"], ["--n-steps", "positive integer"]),
-        (["run", "--example", "particle", "--n-steps", "-3"], ["--n-steps", "positive integer"]),
+        # the library's rules and messages for the options of a run (tests/test_options.py)
+        (["run", "--example", "particle", "--dt", "-0.1"], ["dt must be a positive finite step size; got dt=-0.1"]),
+        (["run", "--example", "particle", "--dt=-0.1"], ["dt must be a positive finite step size"]),
+        (["run", "--example", "particle", "--dt", "0"], ["dt must be a positive finite step size"]),
+        (["run", "--example", "particle", "--dt", "nan"], ["dt must be a positive finite step size"]),
+        (["run", "--example", "particle", "--dt", "x"], ["--dt", "expected a number", "'x'"]),
+        (["run", "--example", "particle", "--n-steps", "0"], ["n_steps must be a positive integer; got n_steps=0"]),
+        (["run", "--example", "particle", "--n-steps", "-3"], ["n_steps must be a positive integer"]),
         (["run", "--example", "particle", "--t1", "-1", "--n-steps", "5"], ["--t1", "positive"]),
         (["run", "--example", "particle", "--dt", "0.1", "--n-steps", "5"], ["not allowed with argument"]),
-        (["run", "--example", "particle", "--rtol", "0"], ["--rtol", "positive finite number"]),
+        (["run", "--example", "particle", "--rtol", "0"], ["rtol must be a positive finite number"]),
         (["run", "--n-steps", "5"], ["required", "--example"]),
         (["run", "--example", "particle", "--n-steps", "5", "--lam-start", "zero"],
          ["--lam-start", "invalid choice", "'zero'", "auto", "previous", "consistent"]),

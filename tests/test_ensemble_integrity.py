@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae import _checkpoint, _ensemble
+from lobattodae import _ensemble
+from lobattodae._io import atomic
 from lobattodae.examples import get_example
 
 H, N_STEPS, BLOCK = 0.05, 4, 2
@@ -130,13 +131,13 @@ def test_load_names_a_block_whose_archive_is_damaged(knife, method, batch, tmp_p
 
 def test_blocks_are_written_by_the_checkpoint_writer(knife, method, batch, tmp_path, monkeypatch):
     written, synced = [], []
-    real_write, real_fsync = _checkpoint._write_atomic, os.fsync
+    real_write, real_fsync = atomic.write_npz, os.fsync
 
     def write(target, payload, **kw):
         written.append(os.path.basename(target))
         return real_write(target, payload, **kw)
 
-    monkeypatch.setattr(_checkpoint, "_write_atomic", write)
+    monkeypatch.setattr(atomic, "write_npz", write)
     monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd))[1])
     _run(knife, method, batch, out_dir=tmp_path)
     assert written == ["ensemble-p00000-b000000.npz", "ensemble-p00000-b000001.npz"]

@@ -220,7 +220,7 @@ def test_projection_and_consistent_lambda_are_differentiable():
 def test_auto_checkpoints_resolve_and_agree():
     """``checkpoints="auto"`` (the default) splits long scans into √length segments and changes
     neither the forward values nor, beyond round-off, the gradient."""
-    from lobattodae._loop import AUTO_CHECKPOINTS_FROM, resolve_checkpoints
+    from lobattodae._integrate import AUTO_CHECKPOINTS_FROM, resolve_checkpoints
 
     assert resolve_checkpoints("auto", AUTO_CHECKPOINTS_FROM - 1) is None
     assert resolve_checkpoints("auto", 2000) == 45

@@ -8,7 +8,8 @@ import pytest
 
 import lobattodae as L
 from lobattodae._controllers import ConstantStepSize, ControlOptions, StepReport
-from lobattodae._loop import Output, init_host, row_capacity, run_host, start_host
+from lobattodae._chunks import init_host, row_capacity, run_host, start_host
+from lobattodae._loop import Output
 from lobattodae.examples import get_example
 
 

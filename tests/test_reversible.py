@@ -20,7 +20,8 @@ import pytest
 
 import lobattodae as L
 from lobattodae._controllers import ControlOptions, ReversibleStepSize, StepReport, phase_space_speed
-from lobattodae._loop import CHUNK, Output, init_host, run_host
+from lobattodae._chunks import CHUNK, init_host, run_host
+from lobattodae._loop import Output
 from lobattodae.examples import get_example
 
 F64 = jnp.float64

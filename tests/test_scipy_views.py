@@ -75,7 +75,7 @@ def test_status_integers_follow_scipy(both):
 
 def test_every_result_has_a_scipy_status_that_agrees_with_success():
     for result in L.Result:
-        status = L._solve.SCIPY_STATUS.get(result, -1)
+        status = L._solution.SCIPY_STATUS.get(result, -1)
         assert status in (-1, 0, 1) and (status >= 0) == result.success
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae import _checkpoint
+from lobattodae._io import checkpoint
 from lobattodae.examples import get_example
 
 from helpers import subprocess_env
@@ -138,7 +138,7 @@ def test_fresh_checkpoint_refuses_a_symlinked_rows_directory(tmp_path):
     victim, names = _victim(tmp_path)
     path = tmp_path / "run.npz"
     os.symlink(victim, tmp_path / "run.npz.rows")
-    with pytest.raises(_checkpoint.CheckpointError, match=r"run\.npz\.rows.*symbolic link") as info:
+    with pytest.raises(checkpoint.CheckpointError, match=r"run\.npz\.rows.*symbolic link") as info:
         L.solve(ex.problem, L.LobattoIIIAIIIB(stages=2), (0.0, 0.1), ex.q0, ex.p0, n_steps=4, args=ex.args,
                 checkpoint=path)
     assert info.value.path == str(path) and f"'{path}.rows'" in str(info.value)
@@ -150,17 +150,17 @@ def test_checkpoint_save_and_load_never_go_through_a_symlinked_rows_directory(tm
     victim, names = _victim(tmp_path)
     path = tmp_path / "ck.npz"
     kw = dict(meta={"a": 1}, counters={"done": 1}, state={"x": np.zeros(2)}, rows={"t": np.arange(3.0)})
-    first = _checkpoint.save(path, **kw)  # a real rows directory ...
+    first = checkpoint.save(path, **kw)  # a real rows directory ...
     os.rename(tmp_path / "ck.npz.rows", tmp_path / "real.rows")
     os.symlink(tmp_path / "real.rows", tmp_path / "ck.npz.rows")  # ... moved behind a link
-    with pytest.raises(_checkpoint.CheckpointError, match="symbolic link"):
-        _checkpoint.load(path, meta={"a": 1}, state_template={"x": np.zeros(2)}, row_names=["t"])
-    with pytest.raises(_checkpoint.CheckpointError, match="symbolic link"):
-        _checkpoint.save(path, **{**kw, "rows": {"t": np.arange(2.0)}}, previous=first)
+    with pytest.raises(checkpoint.CheckpointError, match="symbolic link"):
+        checkpoint.load(path, meta={"a": 1}, state_template={"x": np.zeros(2)}, row_names=["t"])
+    with pytest.raises(checkpoint.CheckpointError, match="symbolic link"):
+        checkpoint.save(path, **{**kw, "rows": {"t": np.arange(2.0)}}, previous=first)
     os.unlink(tmp_path / "ck.npz.rows")
     os.symlink(victim, tmp_path / "ck.npz.rows")
-    with pytest.raises(_checkpoint.CheckpointError, match="symbolic link"):
-        _checkpoint.save(path, **kw)
+    with pytest.raises(checkpoint.CheckpointError, match="symbolic link"):
+        checkpoint.save(path, **kw)
     assert sorted(os.listdir(victim)) == sorted(names)
 
 

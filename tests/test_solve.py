@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae._loop import _run_packed
+from lobattodae._chunks import _run_packed
 from lobattodae.examples import get_example
 
 
@@ -128,7 +128,7 @@ def test_new_numbers_do_not_recompile(knife):
 
 
 def test_integrate_is_compiled_once_per_shape(knife):
-    from lobattodae._loop import _integrate_compiled
+    from lobattodae._integrate import _integrate_compiled
 
     m = L.LobattoIIIAIIIB(stages=2)
     args = (knife.problem, m, 0.0, 0.05, 20, knife.q0, knife.p0, knife.lam0, knife.args)
@@ -273,7 +273,7 @@ def test_ctrl_c_before_the_first_chunk_returns_the_initial_point(knife, monkeypa
     import lobattodae._solve as S
 
     ref = _solve(knife, n=40)
-    monkeypatch.setattr(S, "_deferred_interrupts", lambda: contextlib.nullcontext(lambda: True))
+    monkeypatch.setattr(S, "deferred_interrupts", lambda: contextlib.nullcontext(lambda: True))
     path = tmp_path / "run.npz"
     sol = _solve(knife, n=40, checkpoint=path)
     assert sol.result == L.Result.INTERRUPTED and sol.stats["n_steps"] == 0

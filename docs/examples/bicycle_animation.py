@@ -29,7 +29,11 @@ FIGURE = Path(__file__).resolve().parents[1] / "figures" / "bicycle.gif"
 FRAMES, STEPS_PER_FRAME, H = 80, 5, 0.01
 
 
-def main(argv=None):
+def main(argv=None) -> dict:
+    """Integrate, check and animate (options as on the command line); print what was done and
+    return it: ``"phi"``, ``"psi"``, ``"energy_error"`` (maxima over the step points),
+    ``"energy0"`` (J), ``"roll_max"``, ``"steer_max"`` (rad), ``"travelled"`` (m), ``"out"``
+    (the file) and ``"frames"``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--speed", type=float, default=4.6, help="forward speed v [m/s] (default 4.6)")
     parser.add_argument("--roll-rate", type=float, default=0.5, help="initial roll rate [rad/s] (default 0.5)")
@@ -66,6 +70,10 @@ def main(argv=None):
     out = lobattodae.animate(sol, opts.out, frames=FRAMES, fps=20, figsize=(5.0, 4.5),
                              title=f"Whipple bicycle, v = {opts.speed:g} m/s")
     print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB, {FRAMES} frames) in {time.perf_counter() - t0:.1f} s")
+    return {"phi": float(phi), "psi": float(psi), "energy_error": float(np.abs(H_ - H_[0]).max()),
+            "energy0": float(H_[0]), "roll_max": float(np.abs(sol.q[:, 3]).max()),
+            "steer_max": float(np.abs(sol.q[:, 5]).max()),
+            "travelled": float(sol.q[-1, 0]), "out": out, "frames": FRAMES}
 
 
 if __name__ == "__main__":

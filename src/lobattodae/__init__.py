@@ -16,7 +16,7 @@ import jax as _jax
 _jax.config.update("jax_enable_x64", True)
 
 from ._cache import enable_compilation_cache  # noqa: E402
-from ._checkpoint import CheckpointError, CheckpointWriteError  # noqa: E402
+from ._io import CheckpointError, CheckpointWriteError, EnsembleFileError  # noqa: E402
 from ._conditions import TableauReport, check_tableau  # noqa: E402
 from ._cpu import set_cpu_threads  # noqa: E402
 from ._convergence import ConvergenceStudy, convergence_study, observed_order  # noqa: E402
@@ -43,12 +43,13 @@ from ._problem import (  # noqa: E402
     project_momenta,
 )
 from ._results import Result  # noqa: E402
-from ._loop import AdaptiveResult, IntegrateResult, integrate, integrate_adaptive  # noqa: E402
+from ._integrate import AdaptiveResult, IntegrateResult, integrate, integrate_adaptive  # noqa: E402
 from ._controllers import PIController, ReversibleStepSize  # noqa: E402
 from ._dense import DenseOutput  # noqa: E402
 from ._events import Event  # noqa: E402
-from ._solve import STATS, Solution, solve  # noqa: E402
-from ._ensemble import EnsembleFileError, EnsembleFiles, EnsembleResult, ensemble, load_ensemble  # noqa: E402
+from ._solution import STATS, Solution  # noqa: E402
+from ._solve import solve  # noqa: E402
+from ._ensemble import EnsembleFiles, EnsembleResult, ensemble, load_ensemble  # noqa: E402
 from ._stepper import LobattoIIIAIIIB, StepInfo, StepperState  # noqa: E402
 from ._tableau import LobattoPair, lobatto_iiia, lobatto_iiib, lobatto_nodes, lobatto_pair, lobatto_weights  # noqa: E402
 

@@ -423,7 +423,7 @@ def animate(
     """
     from matplotlib import animation
 
-    from ._plotting import _plt
+    from ._mpl import pyplot as _plt
 
     if path is not None:
         path = Path(path)

@@ -10,15 +10,16 @@ import sys
 import threading
 import time
 import warnings
-from collections.abc import Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from ._cache import cache_switched_off, enable_compilation_cache
+from ._cli_model import MODEL_HELP, from_example, load_model
+from ._cli_model import UsageError as _UsageError
+from ._controllers import ATOL, RTOL
 from ._cpu import one_thread_unless_set
 
 __all__ = ["main"]
@@ -60,8 +61,6 @@ class _ArgumentParser(argparse.ArgumentParser):
         raise _UsageError(f"{self.prog}: error: {message}")
 
 
-class _UsageError(Exception):
-    pass
 
 
 #: Steps between checkpoints of ``lobattodae run --checkpoint FILE`` without ``--checkpoint-every``.
@@ -115,6 +114,23 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def _real(text: str) -> float:
+    """A number on the command line, parsed only: whether it is a valid option value is decided by
+    the library's own rules (:mod:`lobattodae._options`), with the library's message."""
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+def _integer(text: str) -> int:
+    """An integer on the command line, parsed only (see :func:`_real`)."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
 def _example_name(text: str) -> str:
     from .examples import EXAMPLES
 
@@ -132,232 +148,18 @@ def _suffix(path: str, allowed: Sequence[str], what: str) -> Path:
 
 def _output_file(path: str | None, allowed: Sequence[str], option: str) -> Path | None:
     """An output file of a command, checked before any work: its suffix, and that its
-    directory exists and is writable (the library's own check, :func:`~lobattodae._solve.check_writable`)."""
+    directory exists and is writable (the library's own check, :func:`~lobattodae._options.check_writable`)."""
     if path is None:
         return None
     p = _suffix(path, allowed, option)
     from ._errors import LobattoDAEInputError
-    from ._solve import check_writable
+    from ._options import check_writable
 
     try:
         check_writable(str(p), f"{option} file")
     except LobattoDAEInputError as exc:
         raise _UsageError(str(exc)) from None
     return p
-
-
-# ------------------------------------------------------------------------- run --model
-MODEL_HELP = (
-    "your own model: MODULE:FACTORY (a module importable from the current directory, or FILE.py:FACTORY); "
-    "FACTORY() returns (problem, q0, p0[, args]), a dict with keys problem (or model), q0, p0 (or qdot0 "
-    "with a mechanics model) and optionally args, t_span, lam0, invariants, draw, name, or a "
-    "lobattodae.examples.Example"
-)
-
-#: Keys of the dict a ``--model`` factory may return.
-MODEL_KEYS = ("problem", "model", "q0", "p0", "qdot0", "args", "t_span", "lam0", "invariants", "draw", "name")
-
-_MODEL_RETURNS = (
-    "(problem, q0, p0) or (problem, q0, p0, args), a dict with keys problem (or model), q0, p0 (or qdot0) "
-    "[, args, t_span, lam0, invariants, draw, name], or a lobattodae.examples.Example"
-)
-
-
-@dataclass(frozen=True)
-class _Target:
-    """What ``run`` integrates: a built-in example or the result of a ``--model`` factory."""
-
-    name: str
-    problem: Any
-    q0: Any
-    p0: Any
-    lam0: Any = None
-    args: Any = None
-    t_span: tuple[float, float] | None = None
-    invariants: Mapping[str, Any] = field(default_factory=dict)
-    draw: Any = None
-    labels: tuple[str, ...] | None = None  # coordinate names (a mechanics model's)
-
-
-def _from_example(ex, name=None) -> _Target:
-    return _Target(name=name or ex.name, problem=ex.problem, q0=ex.q0, p0=ex.p0, lam0=ex.lam0, args=ex.args,
-                   t_span=ex.t_span, invariants=dict(ex.invariants))
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
-def _import_model_module(spec: str, module_name: str):
-    """The module of ``--model``: a dotted name importable with the current directory on
-    ``sys.path`` (as ``python -m`` has it), or a ``.py`` file."""
-    import importlib
-    import importlib.util
-
-    try:
-        if module_name.endswith(".py"):
-            path = Path(module_name)
-            if not path.is_file():
-                raise _UsageError(f"--model {spec}: no such file {module_name!r}")
-            unique = f"_lobattodae_model_{abs(hash(str(path.resolve())))}"
-            loader_spec = importlib.util.spec_from_file_location(unique, path)
-            module = importlib.util.module_from_spec(loader_spec)
-            sys.modules[unique] = module
-            try:
-                loader_spec.loader.exec_module(module)
-            except BaseException:
-                del sys.modules[unique]
-                raise
-            return module
-        return importlib.import_module(module_name)
-    except _UsageError:
-        raise
-    except (Exception, SystemExit) as exc:  # ImportError, SyntaxError, whatever the module raised at import
-        hint = ""
-        if isinstance(exc, ModuleNotFoundError) and exc.name and module_name.split(".")[0] == exc.name.split(".")[0]:
-            hint = " (run lobattodae from the directory that contains it, or add that directory to PYTHONPATH)"
-        raise _UsageError(f"--model {spec}: cannot import {module_name!r}: {_one_line(exc)}{hint}") from None
-
-
-def _mechanics_model_class():
-    """:class:`lobattodae.mechanics.LagrangianModel` if the mechanics front end is loaded (a
-    factory that returns one has loaded it), else None (SymPy is not imported for nothing)."""
-    module = sys.modules.get("lobattodae.mechanics._model")
-    return getattr(module, "LagrangianModel", None)
-
-
-def _load_model(spec: str) -> _Target:
-    """Import ``MODULE:FACTORY``, call the factory and check what it returned."""
-    module_name, sep, attr = spec.rpartition(":")
-    if not sep or not module_name or not attr or not all(part.isidentifier() for part in attr.split(".")):
-        raise _UsageError(
-            f"--model must be MODULE:FACTORY (e.g. mymodels:sleigh for the function sleigh in mymodels.py, "
-            f"or path/to/file.py:sleigh); got {spec!r}"
-        )
-    # the current directory (as ``python -m`` has it) and a FILE.py's own directory (as ``python
-    # FILE.py`` has it) are on sys.path while the module is imported and the factory runs
-    places = [os.getcwd()]
-    if module_name.endswith(".py"):
-        places.append(str(Path(module_name).resolve().parent))
-    added = [d for d in dict.fromkeys(places) if d not in sys.path]
-    sys.path[:0] = added
-    try:
-        module = _import_model_module(spec, module_name)
-        factory = module
-        for part in attr.split("."):
-            if not hasattr(factory, part):
-                names = sorted(k for k, v in vars(module).items() if callable(v) and not k.startswith("_"))
-                listed = ", ".join(names[:12]) + (", ..." if len(names) > 12 else "")
-                raise _UsageError(
-                    f"--model {spec}: module {module_name!r} ({getattr(module, '__file__', '?')}) has no attribute "
-                    f"{attr!r}; its functions: {listed or 'none'}"
-                )
-            factory = getattr(factory, part)
-        if not callable(factory):
-            raise _UsageError(f"--model {spec}: {attr!r} is a {type(factory).__name__}, not a function; "
-                              f"point at a function without arguments that returns {_MODEL_RETURNS}")
-        try:
-            returned = factory()
-        except (Exception, SystemExit) as exc:
-            raise _UsageError(f"--model {spec}: the factory {attr}() raised {_one_line(exc)}") from None
-    finally:
-        for d in added:
-            if d in sys.path:
-                sys.path.remove(d)
-    return _target_of(spec, attr, returned)
-
-
-def _wrong(spec, what: str) -> _UsageError:
-    return _UsageError(f"--model {spec}: the factory returned {what}; return {_MODEL_RETURNS}")
-
-
-def _describe(value) -> str:
-    text = repr(value)
-    return f"{type(value).__name__} {text if len(text) <= 60 else text[:57] + '...'}"
-
-
-def _target_of(spec: str, attr: str, returned) -> _Target:
-    """The :class:`_Target` of a factory's return value (or a usage error saying what is wrong)."""
-    from .examples import Example
-
-    if isinstance(returned, Example):
-        return _from_example(returned)
-    model_class = _mechanics_model_class()
-    if model_class is not None and isinstance(returned, model_class):
-        raise _UsageError(
-            f"--model {spec}: the factory returned a mechanics model ({returned.name}) without initial values; "
-            "return (model, q0, p0, args) or dict(model=model, q0=..., qdot0=..., args=model.args(...))"
-        )
-    if isinstance(returned, Mapping):
-        unknown = [k for k in returned if k not in MODEL_KEYS]
-        if unknown:
-            raise _wrong(spec, f"a dict with unknown keys {unknown} (allowed: {', '.join(MODEL_KEYS)})")
-        if ("problem" in returned) == ("model" in returned):
-            raise _wrong(spec, "a dict with " + ("both 'problem' and 'model'" if "problem" in returned
-                                                 else "neither 'problem' nor 'model'"))
-        if "q0" not in returned or ("p0" in returned) == ("qdot0" in returned):
-            raise _wrong(spec, "a dict without 'q0'" if "q0" not in returned else
-                         "a dict with " + ("both 'p0' and 'qdot0'" if "p0" in returned else "neither 'p0' nor 'qdot0'"))
-        fields = dict(returned)
-        obj = fields.pop("problem") if "problem" in fields else fields.pop("model")
-    elif isinstance(returned, tuple) and len(returned) in (3, 4):
-        obj, q0, p0, *rest = returned
-        fields = {"q0": q0, "p0": p0, "args": rest[0] if rest else None}
-    else:
-        raise _wrong(spec, _describe(returned) if not isinstance(returned, tuple) else f"a tuple of {len(returned)}")
-
-    name = fields.get("name") or attr
-    args = fields.get("args")
-    if model_class is not None and isinstance(obj, model_class):
-        model = obj
-        problem = model.problem
-        name = fields.get("name") or model.name
-        try:
-            args = model.args(args) if args is None or isinstance(args, Mapping) else args
-        except (ValueError, TypeError) as exc:
-            raise _UsageError(f"--model {spec}: the model's parameters: {_one_line(exc)}") from None
-    else:
-        model, problem = None, obj
-        if not all(callable(getattr(problem, a, None)) for a in ("f", "g", "phi")):
-            raise _wrong(spec, f"{_describe(problem)} where the problem goes (a PartitionedDAE, NonholonomicSystem, "
-                               "MechanicalSystem or mechanics model is needed)")
-    t_span = fields.get("t_span")
-    if t_span is not None:
-        try:
-            t_span = tuple(float(v) for v in t_span)
-            if len(t_span) != 2:
-                raise ValueError
-        except (TypeError, ValueError):
-            raise _wrong(spec, f"t_span {t_span!r} (it must be a pair of numbers (t0, t1))") from None
-    q0 = fields["q0"]
-    p0 = fields.get("p0")
-    if p0 is None and "qdot0" in fields:
-        if model is None:
-            raise _wrong(spec, "qdot0 with a problem that is not a mechanics model (give p0, the momenta)")
-        try:
-            p0 = model.momenta(t_span[0] if t_span else 0.0, q0, fields["qdot0"], args)
-        except (ValueError, TypeError) as exc:
-            raise _UsageError(f"--model {spec}: the momenta of qdot0: {_one_line(exc)}") from None
-    for key, value in (("q0", q0), ("p0", p0)):
-        try:
-            a = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            a = None
-        if a is None or a.ndim != 1 or a.size == 0:
-            raise _wrong(spec, f"{key} = {_describe(value)} (it must be a 1-D array of numbers)")
-    invariants = fields.get("invariants")
-    if invariants is None:
-        ham = getattr(problem, "hamiltonian", None)
-        invariants = {"energy": ham} if callable(ham) else {}
-    elif not isinstance(invariants, Mapping) or not all(callable(v) for v in invariants.values()):
-        raise _wrong(spec, "invariants that are not a dict of functions I(t, q, p, args)")
-    draw = fields.get("draw")
-    if draw is not None and not callable(draw):
-        raise _wrong(spec, f"draw = {_describe(draw)} (it must be a function draw(t, q, args) -> shapes)")
-    labels = tuple(str(c) for c in model.coordinate_names) if model is not None else None
-    return _Target(name=str(name), problem=problem, q0=q0, p0=p0, lam0=fields.get("lam0"), args=args,
-                   t_span=t_span, invariants=dict(invariants), draw=draw, labels=labels)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -392,13 +194,13 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument("--model", metavar="MODULE:FACTORY", help=MODEL_HELP)
     p.add_argument("--stages", type=_stages, default=3)
     step = p.add_mutually_exclusive_group(required=False)
-    step.add_argument("--dt", type=_positive_float, help="constant steps of at most this size")
-    step.add_argument("--n-steps", type=_positive_int, help="this many constant steps")
-    p.add_argument("--rtol", type=_positive_float, default=None,
-                   help="adaptive steps (the default without --dt/--n-steps): relative tolerance (1e-8)")
-    p.add_argument("--atol", type=_positive_float, default=None, help="adaptive steps: absolute tolerance (1e-10)")
+    step.add_argument("--dt", type=_real, help="constant steps of at most this size")
+    step.add_argument("--n-steps", type=_integer, help="this many constant steps")
+    p.add_argument("--rtol", type=_real, default=None,
+                   help=f"adaptive steps (the default without --dt/--n-steps): relative tolerance ({RTOL:g})")
+    p.add_argument("--atol", type=_real, default=None, help=f"adaptive steps: absolute tolerance ({ATOL:g})")
     p.add_argument("--t-eval", type=float, nargs="+", default=None, help="output times (adaptive steps end on them; constant steps interpolate)")
-    p.add_argument("--save-every", type=_positive_int, default=None, help="keep every k-th step point")
+    p.add_argument("--save-every", type=_integer, default=None, help="keep every k-th step point")
     p.add_argument("--t1", type=_positive_float, default=None,
                    help="final time (default: the example's, or the t_span of --model's factory)")
     p.add_argument("--plot", default=None,
@@ -573,8 +375,9 @@ def _cmd_demo(ns) -> int:
 
 def _cmd_run(ns) -> int:
     from ._diagnostics import invariant_error
+    from ._errors import LobattoDAEInputError
     from ._results import Result
-    from ._solve import ATOL, RTOL, solve
+    from ._solve import solve
     from ._stepper import LobattoIIIAIIIB
     from .examples import get_example
 
@@ -599,7 +402,7 @@ def _cmd_run(ns) -> int:
         raise _UsageError("--checkpoint-every needs --checkpoint FILE (it sets how often that file is written)")
     if ns.max_recoveries < 0:
         raise _UsageError(f"--max-recoveries must be >= 0; got {ns.max_recoveries}")
-    ex = _from_example(get_example(ns.example)) if ns.example else _load_model(ns.model)
+    ex = from_example(get_example(ns.example)) if ns.example else load_model(ns.model)
     if ex.t_span is None and ns.t1 is None:
         raise _UsageError(f"--model {ns.model}: the factory gives no t_span; pass --t1 (the final time; t0 = 0) "
                           "or have the factory return a dict with t_span=(t0, t1)")
@@ -608,14 +411,19 @@ def _cmd_run(ns) -> int:
     if not t1 > t0:
         raise _UsageError(f"--t1 must be larger than the initial time {t0}; got {t1}")
     with warnings.catch_warnings(record=True) as caught:  # reported below, in the command line's words
-        sol = solve(
-            ex.problem, LobattoIIIAIIIB(stages=ns.stages, lam_start=ns.lam_start), (t0, t1), ex.q0, ex.p0,
-            n_steps=ns.n_steps, dt=ns.dt, rtol=ns.rtol, atol=ns.atol, t_eval=ns.t_eval, save_every=ns.save_every,
-            lam0=ex.lam0, args=ex.args, throw=False,
-            progress=not ns.no_progress, max_recoveries=ns.max_recoveries,
-            checkpoint=checkpoint, checkpoint_every=(ns.checkpoint_every or CHECKPOINT_EVERY) if checkpoint else None,
-            resume=ns.resume,
-        )
+        try:
+            sol = solve(
+                ex.problem, LobattoIIIAIIIB(stages=ns.stages, lam_start=ns.lam_start), (t0, t1), ex.q0, ex.p0,
+                n_steps=ns.n_steps, dt=ns.dt, rtol=ns.rtol, atol=ns.atol, t_eval=ns.t_eval, save_every=ns.save_every,
+                lam0=ex.lam0, args=ex.args, throw=False,
+                progress=not ns.no_progress, max_recoveries=ns.max_recoveries,
+                checkpoint=checkpoint, checkpoint_every=(ns.checkpoint_every or CHECKPOINT_EVERY) if checkpoint else None,
+                resume=ns.resume,
+            )
+        except LobattoDAEInputError as exc:
+            if type(exc) is not LobattoDAEInputError:  # the problem or the checkpoint, not an option
+                raise
+            raise _UsageError(str(exc)) from None  # the library's rules and message for the options
     message, lam_warning = _split_warning(sol.message)
     print(message)
     if sol.stats["h"] is not None:  # constant steps: how many of how many

@@ -236,6 +236,11 @@ def b_error(b: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
     -------
     float
         The largest absolute residual.
+
+    Raises
+    ------
+    ValueError
+        If ``basis`` is neither ``"monomial"`` nor ``"legendre"``.
     """
     return _error("B", k, basis, b=b, c=c)
 
@@ -244,7 +249,29 @@ def c_error(a: Any, c: Any, k: int, *, basis: str = "monomial") -> float:
     """Residual of ``C(k)``: ``max_{i, m=1..k} |sum_j a_ij c_j^{m-1} - c_i^m / m|``.
 
     Apply it to ``A_hat`` for ``C_hat(k)``. Legendre form: ``P_{m-1}(2c - 1)`` against
-    ``int_0^{c_i} P_{m-1}(2t - 1) dt``. Arguments as in :func:`b_error`.
+    ``int_0^{c_i} P_{m-1}(2t - 1) dt``.
+
+    Parameters
+    ----------
+    a : array_like, shape (s, s)
+        The coefficient matrix ``A`` (pass ``A_hat`` for the hatted assumption).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption; ``k < 1`` is vacuous (residual 0).
+    basis : {"monomial", "legendre"}, optional
+        The test polynomials, as in :func:`b_error` (default ``"monomial"``: the paper's
+        equations literally).
+
+    Returns
+    -------
+    float
+        The largest absolute residual.
+
+    Raises
+    ------
+    ValueError
+        If ``basis`` is neither ``"monomial"`` nor ``"legendre"``.
     """
     return _error("C", k, basis, a=a, c=c)
 
@@ -253,8 +280,31 @@ def d_error(a: Any, b: Any, c: Any, k: int, *, basis: str = "monomial") -> float
     """Residual of ``D(k)``: ``max_{j, m=1..k} |sum_i b_i c_i^{m-1} a_ij - b_j (1 - c_j^m) / m|``.
 
     Apply it to ``A_hat`` (with ``b_hat = b``) for ``D_hat(k)``. Legendre form:
-    ``P_{m-1}(2c - 1)`` against ``b_j int_{c_j}^1 P_{m-1}(2t - 1) dt``. Arguments as in
-    :func:`b_error`.
+    ``P_{m-1}(2c - 1)`` against ``b_j int_{c_j}^1 P_{m-1}(2t - 1) dt``.
+
+    Parameters
+    ----------
+    a : array_like, shape (s, s)
+        The coefficient matrix ``A`` (pass ``A_hat`` for the hatted assumption).
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption; ``k < 1`` is vacuous (residual 0).
+    basis : {"monomial", "legendre"}, optional
+        The test polynomials, as in :func:`b_error` (default ``"monomial"``: the paper's
+        equations literally).
+
+    Returns
+    -------
+    float
+        The largest absolute residual.
+
+    Raises
+    ------
+    ValueError
+        If ``basis`` is neither ``"monomial"`` nor ``"legendre"``.
     """
     return _error("D", k, basis, a=a, b=b, c=c)
 
@@ -263,7 +313,29 @@ def cc_hat_error(a: Any, a_hat: Any, c: Any, k: int, *, basis: str = "monomial")
     """Residual of ``CC_hat(k)``: ``sum_{j,l} a_ij a_hat_jl c_l^{m-2} = c_i^m / (m (m-1))``.
 
     Maximum over ``i = 1..s`` and ``m = 2..k``. Legendre form: ``P_{m-2}(2c - 1)`` against
-    ``int_0^{c_i} int_0^t P_{m-2}(2u - 1) du dt``. Arguments as in :func:`b_error`.
+    ``int_0^{c_i} int_0^t P_{m-2}(2u - 1) du dt``.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption; ``k < 2`` is vacuous (residual 0).
+    basis : {"monomial", "legendre"}, optional
+        The test polynomials, as in :func:`b_error` (default ``"monomial"``: the paper's
+        equations literally).
+
+    Returns
+    -------
+    float
+        The largest absolute residual.
+
+    Raises
+    ------
+    ValueError
+        If ``basis`` is neither ``"monomial"`` nor ``"legendre"``.
     """
     return _error("CC_hat", k, basis, a=a, a_hat=a_hat, c=c)
 
@@ -272,6 +344,28 @@ def c_hat_c_error(a: Any, a_hat: Any, c: Any, k: int, *, basis: str = "monomial"
     """Residual of ``C_hatC(k)``: ``sum_{j,l} a_hat_ij a_jl c_l^{m-2} = c_i^m / (m (m-1))``.
 
     Maximum over ``i = 1..s`` and ``m = 2..k``; see :func:`cc_hat_error`.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption; ``k < 2`` is vacuous (residual 0).
+    basis : {"monomial", "legendre"}, optional
+        The test polynomials, as in :func:`b_error` (default ``"monomial"``: the paper's
+        equations literally).
+
+    Returns
+    -------
+    float
+        The largest absolute residual.
+
+    Raises
+    ------
+    ValueError
+        If ``basis`` is neither ``"monomial"`` nor ``"legendre"``.
     """
     return _error("C_hatC", k, basis, a=a, a_hat=a_hat, c=c)
 
@@ -281,7 +375,31 @@ def dd_hat_error(a: Any, a_hat: Any, b: Any, c: Any, k: int, *, basis: str = "mo
 
     ``sum_{i,j} b_i c_i^{m-2} a_ij a_hat_jl = b_l [(m-1) - (m c_l - c_l^m)] / (m (m-1))``,
     maximum over ``l = 1..s`` and ``m = 2..k``. Legendre form: ``P_{m-2}(2c - 1)`` against
-    ``b_l int_{c_l}^1 int_tau^1 P_{m-2}(2u - 1) du dtau``. Arguments as in :func:`b_error`.
+    ``b_l int_{c_l}^1 int_tau^1 P_{m-2}(2u - 1) du dtau``.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption; ``k < 2`` is vacuous (residual 0).
+    basis : {"monomial", "legendre"}, optional
+        The test polynomials, as in :func:`b_error` (default ``"monomial"``: the paper's
+        equations literally).
+
+    Returns
+    -------
+    float
+        The largest absolute residual.
+
+    Raises
+    ------
+    ValueError
+        If ``basis`` is neither ``"monomial"`` nor ``"legendre"``.
     """
     return _error("DD_hat", k, basis, a=a, a_hat=a_hat, b=b, c=c)
 
@@ -292,6 +410,30 @@ def d_hat_d_error(a: Any, a_hat: Any, b: Any, c: Any, k: int, *, basis: str = "m
     ``sum_{i,j} b_hat_i c_i^{m-2} a_hat_ij a_jl
     = b_hat_l [(m-1) - (m c_l - c_l^m)] / (m (m-1))`` with ``b_hat = b``, maximum over
     ``l = 1..s`` and ``m = 2..k``; see :func:`dd_hat_error`.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption; ``k < 2`` is vacuous (residual 0).
+    basis : {"monomial", "legendre"}, optional
+        The test polynomials, as in :func:`b_error` (default ``"monomial"``: the paper's
+        equations literally).
+
+    Returns
+    -------
+    float
+        The largest absolute residual.
+
+    Raises
+    ------
+    ValueError
+        If ``basis`` is neither ``"monomial"`` nor ``"legendre"``.
     """
     return _error("D_hatD", k, basis, a=a, a_hat=a_hat, b=b, c=c)
 
@@ -300,39 +442,164 @@ def d_hat_d_error(a: Any, a_hat: Any, b: Any, c: Any, k: int, *, basis: str = "m
 
 
 def satisfies_b(b: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``B(k)`` holds: ``b_error(b, c, k, basis="legendre") <= tol``."""
+    """Whether ``B(k)`` holds: ``b_error(b, c, k, basis="legendre") <= tol``.
+
+    Parameters
+    ----------
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption.
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    bool
+        True if ``B(k)`` holds to ``tol``.
+    """
     return _satisfies("B", k, tol, b=b, c=c)
 
 
 def satisfies_c(a: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``C(k)`` holds: ``c_error(a, c, k, basis="legendre") <= tol``."""
+    """Whether ``C(k)`` holds: ``c_error(a, c, k, basis="legendre") <= tol``.
+
+    Parameters
+    ----------
+    a : array_like, shape (s, s)
+        The coefficient matrix ``A`` (pass ``A_hat`` for the hatted assumption).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption.
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    bool
+        True if ``C(k)`` holds to ``tol``.
+    """
     return _satisfies("C", k, tol, a=a, c=c)
 
 
 def satisfies_d(a: Any, b: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``D(k)`` holds: ``d_error(a, b, c, k, basis="legendre") <= tol``."""
+    """Whether ``D(k)`` holds: ``d_error(a, b, c, k, basis="legendre") <= tol``.
+
+    Parameters
+    ----------
+    a : array_like, shape (s, s)
+        The coefficient matrix ``A`` (pass ``A_hat`` for the hatted assumption).
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption.
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    bool
+        True if ``D(k)`` holds to ``tol``.
+    """
     return _satisfies("D", k, tol, a=a, b=b, c=c)
 
 
 def satisfies_cc_hat(a: Any, a_hat: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``CC_hat(k)`` holds: ``cc_hat_error(..., basis="legendre") <= tol``."""
+    """Whether ``CC_hat(k)`` holds: ``cc_hat_error(..., basis="legendre") <= tol``.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption.
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    bool
+        True if ``CC_hat(k)`` holds to ``tol``.
+    """
     return _satisfies("CC_hat", k, tol, a=a, a_hat=a_hat, c=c)
 
 
 def satisfies_c_hat_c(a: Any, a_hat: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``C_hatC(k)`` holds: ``c_hat_c_error(..., basis="legendre") <= tol``."""
+    """Whether ``C_hatC(k)`` holds: ``c_hat_c_error(..., basis="legendre") <= tol``.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption.
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    bool
+        True if ``C_hatC(k)`` holds to ``tol``.
+    """
     return _satisfies("C_hatC", k, tol, a=a, a_hat=a_hat, c=c)
 
 
 def satisfies_dd_hat(a: Any, a_hat: Any, b: Any, c: Any, k: int, tol: float = DEFAULT_TOL) -> bool:
-    """Whether ``DD_hat(k)`` holds: ``dd_hat_error(..., basis="legendre") <= tol``."""
+    """Whether ``DD_hat(k)`` holds: ``dd_hat_error(..., basis="legendre") <= tol``.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption.
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    bool
+        True if ``DD_hat(k)`` holds to ``tol``.
+    """
     return _satisfies("DD_hat", k, tol, a=a, a_hat=a_hat, b=b, c=c)
 
 
 def satisfies_d_hat_d(
     a: Any, a_hat: Any, b: Any, c: Any, k: int, tol: float = DEFAULT_TOL
 ) -> bool:
-    """Whether ``D_hatD(k)`` holds: ``d_hat_d_error(..., basis="legendre") <= tol``."""
+    """Whether ``D_hatD(k)`` holds: ``d_hat_d_error(..., basis="legendre") <= tol``.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    k : int
+        Order of the assumption.
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    bool
+        True if ``D_hatD(k)`` holds to ``tol``.
+    """
     return _satisfies("D_hatD", k, tol, a=a, a_hat=a_hat, b=b, c=c)
 
 
@@ -340,47 +607,172 @@ def satisfies_d_hat_d(
 
 
 def max_order_b(b: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL) -> int:
-    """Largest ``p`` with ``B(p)`` (0 if ``B(1)`` fails); ``cap`` defaults to ``4s + 2``."""
+    """Largest ``p`` with ``B(p)``.
+
+    Parameters
+    ----------
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    cap : int, optional
+        The largest order examined (default ``4s + 2``).
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    int
+        ``p``; 0 if ``B(1)`` fails.
+    """
     return _max_order("B", cap, tol, b=b, c=c)
 
 
 def max_order_c(a: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL) -> int:
-    """Largest ``q`` with ``C(q)`` (0 if ``C(1)`` fails); pass ``A_hat`` for ``C_hat``."""
+    """Largest ``q`` with ``C(q)``; pass ``A_hat`` for ``C_hat``.
+
+    Parameters
+    ----------
+    a : array_like, shape (s, s)
+        The coefficient matrix ``A`` (pass ``A_hat`` for the hatted assumption).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    cap : int, optional
+        The largest order examined (default ``4s + 2``).
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    int
+        ``q``; 0 if ``C(1)`` fails.
+    """
     return _max_order("C", cap, tol, a=a, c=c)
 
 
 def max_order_d(
     a: Any, b: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL
 ) -> int:
-    """Largest ``r`` with ``D(r)`` (0 if ``D(1)`` fails); pass ``A_hat`` for ``D_hat``."""
+    """Largest ``r`` with ``D(r)``; pass ``A_hat`` for ``D_hat``.
+
+    Parameters
+    ----------
+    a : array_like, shape (s, s)
+        The coefficient matrix ``A`` (pass ``A_hat`` for the hatted assumption).
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    cap : int, optional
+        The largest order examined (default ``4s + 2``).
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    int
+        ``r``; 0 if ``D(1)`` fails.
+    """
     return _max_order("D", cap, tol, a=a, b=b, c=c)
 
 
 def max_order_cc_hat(
     a: Any, a_hat: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL
 ) -> int:
-    """Largest ``Q`` with ``CC_hat(Q)``; 1 means that ``CC_hat(2)`` already fails."""
+    """Largest ``Q`` with ``CC_hat(Q)``.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    cap : int, optional
+        The largest order examined (default ``4s + 2``).
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    int
+        ``Q``; 1 if ``CC_hat(2)`` already fails.
+    """
     return _max_order("CC_hat", cap, tol, a=a, a_hat=a_hat, c=c)
 
 
 def max_order_c_hat_c(
     a: Any, a_hat: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL
 ) -> int:
-    """Largest ``Q_hat`` with ``C_hatC(Q_hat)``; 1 means that ``C_hatC(2)`` already fails."""
+    """Largest ``Q_hat`` with ``C_hatC(Q_hat)``.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    cap : int, optional
+        The largest order examined (default ``4s + 2``).
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    int
+        ``Q_hat``; 1 if ``C_hatC(2)`` already fails.
+    """
     return _max_order("C_hatC", cap, tol, a=a, a_hat=a_hat, c=c)
 
 
 def max_order_dd_hat(
     a: Any, a_hat: Any, b: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL
 ) -> int:
-    """Largest ``R`` with ``DD_hat(R)``; 1 means that ``DD_hat(2)`` already fails."""
+    """Largest ``R`` with ``DD_hat(R)``.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    cap : int, optional
+        The largest order examined (default ``4s + 2``).
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    int
+        ``R``; 1 if ``DD_hat(2)`` already fails.
+    """
     return _max_order("DD_hat", cap, tol, a=a, a_hat=a_hat, b=b, c=c)
 
 
 def max_order_d_hat_d(
     a: Any, a_hat: Any, b: Any, c: Any, *, cap: int | None = None, tol: float = DEFAULT_TOL
 ) -> int:
-    """Largest ``R_hat`` with ``D_hatD(R_hat)``; 1 means that ``D_hatD(2)`` already fails."""
+    """Largest ``R_hat`` with ``D_hatD(R_hat)``.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+    c : array_like, shape (s,)
+        The nodes (``c_hat = c``).
+    cap : int, optional
+        The largest order examined (default ``4s + 2``).
+    tol : float, optional
+        The largest residual that counts as satisfied (default :data:`DEFAULT_TOL`).
+
+    Returns
+    -------
+    int
+        ``R_hat``; 1 if ``D_hatD(2)`` already fails.
+    """
     return _max_order("D_hatD", cap, tol, a=a, a_hat=a_hat, b=b, c=c)
 
 
@@ -390,8 +782,19 @@ def max_order_d_hat_d(
 def conjugacy_error(a: Any, a_hat: Any, b: Any) -> float:
     """Residual of symplectic conjugacy: ``max_{i,j} |b_i a_hat_ij + b_j a_ji - b_i b_j|``.
 
-    (With ``b_hat = b``; ``a, a_hat`` of shape (s, s), ``b`` of shape (s,).) Zero for the
-    Lobatto IIIA-IIIB pair.
+    Zero for the Lobatto IIIA-IIIB pair.
+
+    Parameters
+    ----------
+    a, a_hat : array_like, shape (s, s)
+        The coefficient matrices ``A`` and ``A_hat`` of the pair.
+    b : array_like, shape (s,)
+        The weights (``b_hat = b``).
+
+    Returns
+    -------
+    float
+        The largest absolute residual.
     """
     a, a_hat, b = _arrays(a, a_hat, b)
     res = b[:, None] * a_hat + b[None, :] * a.T - np.outer(b, b)
@@ -469,9 +872,21 @@ def hypotheses(pair: Any, tol: float = 0.0) -> Hypotheses:
 def stability_function(a: Any, b: Any, z: Any) -> Any:
     """Stability function ``R(z) = 1 + z b^T (I - z A)^{-1} 1``.
 
-    ``y_1 = R(h lambda) y_0`` for one step on ``y' = lambda y``. ``a`` has shape (s, s),
-    ``b`` shape (s,), and ``z`` (``h lambda``) is a complex or real scalar or array. Returns
-    ``R(z)`` with the shape of ``z`` (real if ``z`` is real).
+    ``y_1 = R(h lambda) y_0`` for one step on ``y' = lambda y``.
+
+    Parameters
+    ----------
+    a : array_like, shape (s, s)
+        The coefficient matrix.
+    b : array_like, shape (s,)
+        The weights.
+    z : complex or float, or array_like of them
+        ``h lambda``.
+
+    Returns
+    -------
+    complex or float, or numpy.ndarray
+        ``R(z)``, with the shape of ``z`` (real if ``z`` is real).
     """
     a, b = _arrays(a, b)
     z = np.asarray(z)
@@ -586,11 +1001,23 @@ class TableauReport:
     order_lam: int | None
 
     def to_dict(self) -> dict[str, Any]:
-        """The report as a plain dict (JSON-serialisable)."""
+        """The report as a plain dict.
+
+        Returns
+        -------
+        dict
+            Field name -> value (JSON-serialisable).
+        """
         return asdict(self)
 
     def format(self) -> str:
-        """A readable multi-line table."""
+        """A readable multi-line table (also ``str(report)``).
+
+        Returns
+        -------
+        str
+            The assumptions, hypotheses and predicted orders, one per line.
+        """
 
         def yn(flag: bool) -> str:
             return "yes" if flag else "NO"

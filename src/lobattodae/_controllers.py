@@ -55,12 +55,16 @@ MIN_RELATIVE_STEP = 1e-14
 END_STRETCH = 0.01
 
 
+#: The default tolerances of error-controlled steps (every entry point and the CLI).
+RTOL, ATOL = 1e-8, 1e-10
+
+
 class ControlOptions(NamedTuple):
     """The traced numbers a controller needs (new values do not recompile)."""
 
     n: Any = 1  # ConstantStepSize: number of steps
-    rtol: Any = 1e-8
-    atol: Any = 1e-10
+    rtol: Any = RTOL
+    atol: Any = ATOL
     first_step: Any = 0.0  # 0: automatic
     max_step: Any = jnp.inf
 

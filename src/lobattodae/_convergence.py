@@ -26,8 +26,23 @@ def observed_order(h: Sequence[float], err: Sequence[float], floor: float = 0.0,
 
     Only points with ``err > floor`` (above the round-off plateau) are used, and of those the
     ``n_fit`` smallest step sizes (the asymptotic regime; coarse steps can be pre-asymptotic).
-    Returns NaN when fewer than two points lie above the floor (the component is exact, or
-    at round-off for every step size).
+
+    Parameters
+    ----------
+    h : sequence of float
+        Step sizes.
+    err : sequence of float
+        The global error for each step size; NaN (a failed run) and 0 are left out.
+    floor : float, optional
+        Errors at or below it count as round-off and are left out (default 0).
+    n_fit : int, optional
+        How many of the smallest remaining step sizes the fit uses (default 4).
+
+    Returns
+    -------
+    float
+        The fitted slope; NaN when fewer than two points lie above the floor (the component
+        is exact, or at round-off for every step size).
     """
     h = np.asarray(h, float)
     err = np.asarray(err, float)
@@ -81,12 +96,17 @@ class ConvergenceStudy:
     h : dict s -> array of step sizes
     errors : dict s -> dict component -> array of global errors (max over the grid of the
         max-norm error against the exact solution; at the final time against a reference)
+    reference : str
+        What the errors are measured against: ``"exact"`` (the exact solution) or
+        ``"reference"`` (a finer run with one more stage).
     floors : dict component -> round-off floor used in the fits
     observed : dict s -> dict component -> fitted order (NaN: none could be fitted; the table
         says "exact" only where every error is at the round-off floor, see :func:`order_text`)
     expected : dict s -> dict component -> order predicted by the paper's Corollary, or the
         example's recorded superconvergent order (None: exact to round-off)
     constraint_residual : dict s -> max ‖φ‖∞ over all runs with s stages
+    notes : str
+        A remark printed under the table (empty: none).
     """
 
     name: str
@@ -102,8 +122,18 @@ class ConvergenceStudy:
     notes: str = field(default="")
 
     def table(self, more: str = "give more step counts (n_steps)") -> str:
-        """Observed vs theoretical orders, one row per s; ``more`` is the advice printed under
-        ``n/a`` orders (the command line names its own option)."""
+        """Observed vs theoretical orders, one row per s, as text.
+
+        Parameters
+        ----------
+        more : str, optional
+            The advice printed under ``n/a`` orders (the command line names its own option).
+
+        Returns
+        -------
+        str
+            The table, with a legend for ``n/a`` and ``exact`` entries and the notes.
+        """
         lines = [
             f"Convergence study: {self.name} (errors against the {self.reference} solution)",
             f"{'s':>3} | {'q obs':>6} {'theory':>6} | {'p obs':>6} {'theory':>6} | "
@@ -137,6 +167,17 @@ class ConvergenceStudy:
         return self.table()
 
     def to_dict(self) -> dict[str, Any]:
+        """The study as plain Python data that :mod:`json` can write.
+
+        Returns
+        -------
+        dict
+            ``name``, ``reference``, ``stages``, ``floors``, ``notes`` and, under ``runs``, per
+            number of stages (as a string key) the step counts, step sizes, errors, observed
+            and expected orders and the largest constraint residual; NaN and infinite numbers
+            become None.
+        """
+
         def conv(x):
             if isinstance(x, np.ndarray):
                 return [conv(v) for v in x.tolist()]
@@ -164,6 +205,13 @@ class ConvergenceStudy:
         }
 
     def to_json(self, path) -> None:
+        """Write :meth:`to_dict` to a JSON file.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The file to write (replaced if it exists).
+        """
         with open(path, "w") as fh:
             json.dump(self.to_dict(), fh, indent=2)
 
@@ -195,6 +243,53 @@ def convergence_study(
     Errors below ``plateau[c] * (1 + max|c|)`` (per component c; a float applies to all)
     count as round-off and are left out of the fits. A run whose Newton iteration fails (a
     step too large for the problem) is recorded with NaN errors and left out of the fits.
+
+    Parameters
+    ----------
+    problem : Example, PartitionedDAE, NonholonomicSystem or MechanicalSystem
+        The problem; an :class:`~lobattodae.examples.Example` also supplies every argument
+        below that is left as None, and its expected orders.
+    t_span : (float, float), optional
+        ``(t0, t1)``; required without an Example.
+    q0, p0 : array_like, shape (n,), optional
+        Consistent initial values; required without an Example.
+    stages : sequence of int, optional
+        The numbers of stages s to study (default 2 to 5).
+    n_steps : sequence of int, or dict s -> sequence of int, optional
+        The step counts, for every s or per s (default: a range for each s wide enough
+        that q and p reach the round-off plateau while λ is still resolved).
+    exact : callable, optional
+        ``exact(t) -> (q, p, lam)`` at an array of times; without it the errors are
+        measured against a reference run.
+    lam0 : array_like, shape (m,), optional
+        Initial multiplier (default: from the hidden constraint).
+    args : pytree, optional
+        Passed to the problem functions.
+    method_options : dict, optional
+        Keyword arguments of :class:`~lobattodae.LobattoIIIAIIIB` other than ``stages``.
+    name : str, optional
+        The study's name (default: the Example's, or the problem's ``name`` attribute).
+    plateau : float or dict component -> float, optional
+        Relative round-off levels of q, p and λ (default ``PLATEAU_REL``).
+
+    Returns
+    -------
+    ConvergenceStudy
+        Errors, observed orders and the orders expected from the theory (or recorded by
+        the Example), per number of stages.
+
+    Raises
+    ------
+    LobattoDAEInputError
+        ``t_span``, ``q0`` or ``p0`` missing without an Example, ``stages`` empty, or bad
+        input found by :func:`~lobattodae.solve` (shapes, inconsistent initial values).
+    ValueError
+        Every run failed, or a number of stages below 2 or a bad ``method_options`` value
+        (refused by :class:`~lobattodae.LobattoIIIAIIIB`).
+    TypeError
+        An unknown ``method_options`` keyword.
+    NewtonFailure
+        The reference run (without ``exact``) failed.
     """
     expected_order = None
     if hasattr(problem, "problem") and hasattr(problem, "q0"):

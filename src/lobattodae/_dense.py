@@ -160,11 +160,27 @@ class DenseOutput:
     Accuracy: between step points q, p and λ converge with order s (the step points
     themselves with 2s − 2), and ‖φ‖ is of the interpolation error there, not at round-off.
     At tight tolerances the values between steps are therefore orders of magnitude less
-    accurate than the steps (sleigh, rtol 1e-12, s = 5: 2.0e-10 between steps where the
-    steps are at 1e-15). Where values at given times must be as accurate as the run, ask for
-    them as ``t_eval`` rows (under error control the steps end on them). Where they must
-    satisfy the constraints, ``sol(t, project=True)`` moves them onto ψ = 0, φ = 0 and the
-    consistent λ (:func:`~lobattodae._projection.project_row`; the order stays s).
+    accurate than the steps (measured on the [benchmarks page](../benchmarks/index.md)).
+    Where values at given times must be as accurate as the run, ask for them as ``t_eval``
+    rows (under error control the steps end on them). Where they must satisfy the
+    constraints, ``sol(t, project=True)`` moves them onto ψ = 0, φ = 0 and the consistent λ
+    (the order stays s).
+
+    Built by :func:`~lobattodae.solve`, not by hand: it is ``sol.sol`` of a
+    :class:`~lobattodae.Solution`.
+
+    Attributes
+    ----------
+    pair : LobattoPair
+        The coefficients of the method that made the steps.
+    n_steps : int
+        The number of stored steps.
+    t0, t1 : float
+        The ends of the integrated interval (``t1 < t0`` for a run backwards).
+    problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem or None
+        The problem, which ``project=True`` needs.
+    args : pytree
+        Its ``args``.
     """
 
     def __init__(self, pair: LobattoPair, packed: np.ndarray, pieces: int, n: int, m: int, t0: float,
@@ -191,6 +207,18 @@ class DenseOutput:
         project : bool
             Move the values onto the constraints (ψ = 0 where the problem has position
             constraints, φ = 0, λ consistent) instead of returning the interpolant itself.
+
+        Returns
+        -------
+        tuple of ndarray, or ndarray
+            ``(q, p, lam)`` or, with ``layout="scipy"``, one stacked array (shapes above).
+
+        Raises
+        ------
+        LobattoDAEInputError
+            An unknown ``layout``, a ``project`` that is not a bool, ``project=True`` without
+            the problem, ``t`` not a scalar or 1-D array, a time outside the integrated
+            interval, or no stored step.
         """
         if layout not in LAYOUTS:
             raise LobattoDAEInputError(f"layout must be one of {LAYOUTS}; got {layout!r}.")

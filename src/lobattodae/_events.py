@@ -95,10 +95,25 @@ def _direction(value, what: str) -> float:
 class Event:
     """An event function ``fn(t, q, p, args) -> scalar`` and what its zeros do.
 
-    ``terminal``: 0 (record only), or stop the run at the k-th zero (``True`` means 1).
-    ``direction``: record zeros where ``fn`` increases (> 0), decreases (< 0) or both (0),
-    in the direction of integration. Events compare equal when their fields do, so solving again
-    with the same function reuses the compiled loop.
+    Events compare equal when their fields do, so solving again with the same function reuses
+    the compiled loop.
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(t, q, p, args) -> float``, a number (not a bool) whose zeros are the events.
+    terminal : bool or int, optional
+        0 (default: record only), or stop the run at the k-th zero (``True`` means 1); an
+        integer from 0 to ``2**31 - 1``.
+    direction : float, optional
+        Record zeros where ``fn`` increases (> 0), decreases (< 0) or both (0, the default),
+        in the direction of integration.
+
+    Raises
+    ------
+    LobattoDAEInputError
+        ``fn`` is not callable, ``terminal`` is not a bool or an integer in range, or
+        ``direction`` is not a number (or is NaN).
     """
 
     fn: Callable[..., Any]

@@ -13,44 +13,30 @@ One ``lax.while_loop`` whose body always reads in that order:
 
 Everything that changes from run to run (initial values, ``t_span``, tolerances, ``t_eval``
 values, ``args``) is traced, so a loop is compiled once per (problem, method, controller,
-output, shapes, buffer length). :func:`integrate` and :func:`integrate_adaptive` are the pure
-entry points on top of it (jit/vmap-able); :func:`~lobattodae.solve` runs it in chunks.
+output, shapes, buffer length). :func:`~lobattodae.integrate` and
+:func:`~lobattodae.integrate_adaptive` are the pure entry points on top of it (jit/vmap-able,
+:mod:`lobattodae._integrate`); :func:`~lobattodae.solve` runs it in chunks
+(:mod:`lobattodae._chunks`). The layout of the recorded rows is :mod:`lobattodae._rows`'.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from ._controllers import END_STRETCH, ConstantStepSize, ControlOptions, PIController, StepReport
-from ._dense import DenseStep, dense_size, empty_dense_step, evaluate, pack_dense, unpack_dense
-from ._errors import LobattoDAEInputError
+from ._controllers import END_STRETCH, ControlOptions, StepReport
+from ._dense import DenseStep, dense_size, empty_dense_step, evaluate, pack_dense
 from ._events import Event, EventState, crossings, event_values, locate_all, node_times, node_values
-from ._packing import StatePacking
 from ._projection import project_row
 from ._results import Result
-from ._doubling import for_error_control
+from ._rows import Record, event_buffers, event_row, pack_row, row_buffers
 from ._stepper import LobattoIIIAIIIB, StepperState
 
-__all__ = [
-    "CHUNK",
-    "Chunk",
-    "IntegrateResult",
-    "AdaptiveResult",
-    "Output",
-    "Record",
-    "State",
-    "init_state",
-    "integrate",
-    "integrate_adaptive",
-    "run",
-]
+__all__ = ["Attempt", "Chunk", "Output", "State", "Steps", "attempt", "init_state", "run", "scan_run"]
 
 #: An event's zero that the loop steps onto (a terminal one, or any under error control) is
 #: refined (the step taken again onto ``t - v/v'``) until the Newton update in time is below this
@@ -58,9 +44,6 @@ __all__ = [
 #: zero to the accuracy of a step point.
 EVENT_TIME_RTOL = 1e-13
 MAX_EVENT_REFINEMENTS = 4
-#: Step attempts per compiled chunk in :func:`~lobattodae.solve` (a fixed length: a new number
-#: of steps never recompiles; a short run stops early and leaves the rest of the buffers unused).
-CHUNK = 2048
 
 
 @dataclass(frozen=True)
@@ -79,21 +62,6 @@ class Output:
     step_to_t_eval: bool = False  # error-controlled steps end on the t_eval times (T_EVAL_ROWS)
     project_t_eval: bool = False  # interpolated t_eval rows are moved onto the constraints (T_EVAL_ROWS)
     land_on_events: bool = False  # error control: every zero becomes a step point (see _events)
-
-
-class Record(NamedTuple):
-    """One output row per accepted step (the step ending at ``t``)."""
-
-    t: jax.Array
-    q: jax.Array
-    p: jax.Array
-    lam: jax.Array
-    iterations: jax.Array  # Newton iterations of the step
-    n_jacobians: jax.Array
-    residual_norm: jax.Array  # max-norm of the last Newton residual
-    constraint: jax.Array  # ‖φ(t, q, p)‖∞
-    drift: jax.Array  # ‖λ − λ(t, q, p)‖∞
-    resync: jax.Array  # the step started from λ(t_n, q_n, p_n) ("auto")
 
 
 class State(NamedTuple):
@@ -146,29 +114,6 @@ def init_state(problem, method: LobattoIIIAIIIB, controller, output: Output, t0,
         max_constraint=jnp.max(jnp.abs(problem.phi(t0, q0, p0, args)), initial=0.0),
         max_drift=jnp.asarray(0.0, dtype),
     )
-
-
-_FLOAT_FIELDS = ("t", "q", "p", "lam", "residual_norm", "constraint", "drift")
-_INT_FIELDS = ("iterations", "n_jacobians", "resync")
-
-
-def _pack_row(row: Record):
-    """One float and one int32 vector per row: two buffer updates per row instead of ten."""
-    floats = jnp.concatenate([jnp.atleast_1d(getattr(row, f)) for f in _FLOAT_FIELDS])
-    ints = jnp.stack([jnp.asarray(getattr(row, f)).astype(jnp.int32) for f in _INT_FIELDS])
-    return floats, ints
-
-
-def _unpack_rows(floats, ints, n: int, m: int) -> Record:
-    sizes = {"t": 1, "q": n, "p": n, "lam": m, "residual_norm": 1, "constraint": 1, "drift": 1}
-    out, i = {}, 0
-    for f in _FLOAT_FIELDS:
-        block = floats[:, i : i + sizes[f]]
-        out[f] = block if f in ("q", "p", "lam") else block[:, 0]
-        i += sizes[f]
-    for j, f in enumerate(_INT_FIELDS):
-        out[f] = ints[:, j].astype(bool) if f == "resync" else ints[:, j]
-    return Record(**out)
 
 
 class Chunk(NamedTuple):
@@ -226,43 +171,6 @@ def clip_to_outputs(t, h, t_eval):
     # as at the end of the interval, a step that would stop just short of the time is stretched to it
     reaches = jnp.isfinite(keys[k]) & (direction * rest > 0) & (jnp.abs(rest) <= (1.0 + END_STRETCH) * jnp.abs(h))
     return jnp.where(reaches, rest, h)
-
-
-#: How ``t_eval`` rows are made: ``"step"``, error-controlled steps end on the requested times
-#: (rows as accurate as step points, at the cost of the extra steps); ``"interpolate"``, rows
-#: from the dense output (order s between step points, no extra steps, φ violated by the
-#: interpolation error); ``"project"``, interpolated rows moved onto the constraints (ψ = 0,
-#: φ = 0 and the consistent λ: :func:`~lobattodae._projection.project_row`; order s, φ at round-off).
-T_EVAL_ROWS = ("step", "interpolate", "project")
-
-
-def t_eval_rows_mode(t_eval_rows, controller, has_t_eval: bool) -> str | None:
-    """How the ``t_eval`` rows are made (one of T_EVAL_ROWS; None without ``t_eval``): the one
-    place that decides it. Default (None): steps end on them under error control; constant steps
-    (they keep their grid) and the reversible control (it would lose its symmetry) interpolate."""
-    if t_eval_rows is not None and t_eval_rows not in T_EVAL_ROWS:
-        raise LobattoDAEInputError(
-            "t_eval_rows must be 'step' (error-controlled steps end on the t_eval times), 'interpolate' (rows from "
-            f"the dense output) or 'project' (interpolated rows moved onto the constraints); got {t_eval_rows!r}."
-        )
-    if t_eval_rows == "step" and not isinstance(controller, PIController):
-        raise LobattoDAEInputError(
-            "t_eval_rows='step' needs error-controlled steps (rtol/atol with a PIController): constant steps keep "
-            "their grid and ReversibleStepSize its symmetry; use t_eval_rows='interpolate' or 'project'."
-        )
-    if not has_t_eval:
-        return None
-    if t_eval_rows is None:
-        return "step" if isinstance(controller, PIController) else "interpolate"
-    return t_eval_rows
-
-
-def t_eval_output(mode: str | None, dense: bool = False, events: tuple[Event, ...] = (), controller=None) -> Output:
-    """The loop's :class:`Output` for the ``t_eval`` rows made as ``mode`` (:func:`t_eval_rows_mode`);
-    under error control (a :class:`PIController`) the steps land on the events' zeros."""
-    return Output(t_eval=mode is not None, dense=dense, events=events, step_to_t_eval=mode == "step",
-                  project_t_eval=mode == "project",
-                  land_on_events=bool(events) and isinstance(controller, PIController))
 
 
 def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: State, args,
@@ -504,7 +412,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
             if output.project_t_eval:
                 q, p, lam = project_row(problem, te, q, p, lam, args)
             q, p, lam = (jnp.where(at_end, a, b) for a, b in zip((st.q, st.p, st.lam), (q, p, lam)))
-            floats, ints = _pack_row(_row(problem, args, te, q, p, lam, info))
+            floats, ints = pack_row(_row(problem, args, te, q, p, lam, info))
             return k + 1, (rows[0].at[i].set(floats), rows[1].at[i].set(ints)), i + 1
 
         def cond(c):
@@ -532,7 +440,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
             new, rows, n_rows = flush(new, rows, n_rows, new.last, a.info)
         else:
             save = a.kept & ((new.n_accepted % every == 0) | a.finished)
-            floats, ints = _pack_row(_step_record(a))
+            floats, ints = pack_row(_step_record(a))
             at = jnp.where(save, n_rows, capacity)
             rows = (rows[0].at[at].set(floats, mode="drop"), rows[1].at[at].set(ints, mode="drop"))
             n_rows = n_rows + save.astype(jnp.int32)
@@ -551,7 +459,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
 
             def event_rows(times=times):
                 q, p, lam = jax.vmap(lambda tt: evaluate(pair, a.info.dense, tt))(times)
-                return jnp.concatenate([times[:, None], q, p, lam], axis=1)
+                return event_row(times, q, p, lam)
 
             # the states only where a zero was found (most steps have none); the buffers outside the cond
             rows = jax.lax.cond(jnp.any(found), event_rows, lambda: jnp.zeros((n_sub, ev_rows.shape[1]), dtype))
@@ -560,20 +468,19 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
             ev_idx = ev_idx.at[at].set(j, mode="drop")
             n_events = n_events + jnp.sum(found, dtype=jnp.int32)
         # a zero the steps ended on (terminal, or landed on under error control): the step point itself
-        row = jnp.concatenate([a.t1[None], a.q1, a.p1, a.lam1])
+        row = event_row(a.t1, a.q1, a.p1, a.lam1)
         at_point = a.final_event | a.landed
         at = jnp.where(at_point, n_events, drop)
         ev_rows = ev_rows.at[at].set(row, mode="drop")
         ev_idx = ev_idx.at[at].set(jnp.where(a.final_event, a.final_index, a.landed_index), mode="drop")
         return ev_rows, ev_idx, n_events + at_point.astype(jnp.int32)
 
-    rows = (jnp.full((capacity, 2 * n + m + 4), jnp.nan, dtype), jnp.zeros((capacity, 3), jnp.int32))
+    rows = row_buffers(capacity, n, m, dtype)
     zero = jnp.asarray(0, jnp.int32)
     state, rows, n_rows = flush(state, rows, zero, state.last)
     d_size = dense_size(method.pieces, method.stages, n, m)
     dense = jnp.full((length, d_size), jnp.nan, dtype) if output.dense else None
-    ev_rows = jnp.full((ev_capacity, 1 + 2 * n + m), jnp.nan, dtype) if n_ev else None
-    ev_idx = jnp.zeros((ev_capacity,), jnp.int32) if n_ev else None
+    ev_rows, ev_idx = event_buffers(ev_capacity, n, m, dtype) if n_ev else (None, None)
     buf = (rows, n_rows, dense, zero, ev_rows, ev_idx, zero)
     state, buf, _ = jax.lax.while_loop(running, body, (state, buf, zero))
     (floats, ints), n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
@@ -636,401 +543,3 @@ def scan_run(problem, method: LobattoIIIAIIIB, controller, state: State, args, l
 
     state, steps = jax.lax.scan(segment, state, inner * jnp.arange(checkpoints))
     return state, jax.tree_util.tree_map(lambda x: x.reshape((-1,) + x.shape[2:])[:length], steps)
-
-
-# -- the loop as solve() drives it: compiled chunks, the state on the host ---------------------------
-@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output", "packing"))
-def _init_packed(problem, method, controller, output, packing, t0, t1, options, q0, p0, lam0, args):
-    return packing.pack(init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args))
-
-
-@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output", "packing", "length",
-                                             "capacity"))
-def _run_packed(problem, method, controller, output, packing, fresh, floats, ints, start, args, length, every, t_eval,
-                capacity):
-    """:func:`run` from the packed state, or (``fresh``) from the state :func:`init_state` makes of
-    ``start = (t0, t1, options, q0, p0, lam0)``: a run's first chunk needs no call of its own to
-    initialise, and every chunk runs the same compiled program."""
-    state = jax.lax.cond(fresh, lambda: init_state(problem, method, controller, output, *start, args),
-                         lambda: packing.unpack(floats, ints))
-    state, chunk = run(problem, method, controller, output, state, args, length, every, t_eval, capacity=capacity)
-    return packing.pack(state), chunk
-
-
-def row_capacity(length: int, every: int) -> int:
-    """Step-point rows a chunk of ``length`` attempts can need when keeping every ``every``-th
-    one (and the last), rounded up to a power of two (few distinct buffer shapes to compile):
-    a sparse output (``save_every="final"``) does not allocate, fill and return ``length``
-    rows per chunk."""
-    return min(length, 1 << (length // every + 1).bit_length())
-
-
-_PACKINGS: dict = {}
-#: Layouts kept at most (one per problem object, method, controller, output and shapes).
-_PACKINGS_MAX = 256
-
-
-def _state_packing(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args) -> StatePacking:
-    """The layout of the loop state, traced once per problem, method, controller, output and
-    shapes (of the values and of ``args``)."""
-    leaves, treedef = jax.tree_util.tree_flatten(args)
-    key = (problem, method, controller, output, q0.shape, lam0.shape, treedef,
-           tuple((np.shape(x), x.dtype if hasattr(x, "dtype") else np.result_type(x)) for x in leaves))
-    packing = _PACKINGS.get(key)
-    if packing is None:
-        shapes = jax.eval_shape(functools.partial(init_state, problem, method, controller, output),
-                                t0, t1, options, q0, p0, lam0, args)
-        if len(_PACKINGS) >= _PACKINGS_MAX:
-            _PACKINGS.clear()
-        packing = _PACKINGS[key] = StatePacking.of(shapes)
-    return packing
-
-
-def _start(t0, t1, options: ControlOptions, q0, p0, lam0) -> tuple:
-    """``(t0, t1, options, q0, p0, lam0)`` as host arrays of fixed dtypes: one compiled signature
-    whatever Python or NumPy types the caller used."""
-    t0, t1, q0, p0, lam0 = (np.asarray(x, np.float64) for x in (t0, t1, q0, p0, lam0))
-    options = ControlOptions(np.asarray(options.n, np.int32), *(np.asarray(x, np.float64) for x in options[1:]))
-    return t0, t1, options, q0, p0, lam0
-
-
-def init_host(problem, method, controller, output: Output, t0, t1, options: ControlOptions, q0, p0, lam0,
-              args) -> tuple[State, StatePacking]:
-    """:func:`init_state`, compiled, with the state returned to the host (NumPy arrays) and the
-    layout to hand to :func:`run_host` with it."""
-    start = _start(t0, t1, options, q0, p0, lam0)
-    packing = _state_packing(problem, method, controller, output, *start, args)
-    packed = _init_packed(problem, method, controller, output, packing, *start, args)
-    return packing.unpack(*jax.device_get(packed)), packing
-
-
-def start_host(problem, method, controller, output: Output, t0, t1, options: ControlOptions, q0, p0, lam0, args,
-               length: int, every=1, t_eval=None) -> tuple[State, Chunk, StatePacking]:
-    """:func:`init_host` and the first :func:`run_host` in one compiled call (one dispatch and
-    one state transfer less: most of a short run's fixed cost); returns the state after the
-    chunk, the chunk and the layout to hand to :func:`run_host` for the next chunks."""
-    start = _start(t0, t1, options, q0, p0, lam0)
-    packing = _state_packing(problem, method, controller, output, *start, args)
-    packed = packing.empty()
-    return *_run_chunk(problem, method, controller, output, packing, True, packed, start, args, length, every,
-                       t_eval), packing
-
-
-def run_host(problem, method, controller, output: Output, packing: StatePacking, state: State, args, length: int,
-             every=1, t_eval=None) -> tuple[State, Chunk]:
-    """:func:`run`, compiled once per (problem, method, controller, output, shapes, length), from
-    and to a state on the host: it travels packed (:mod:`lobattodae._packing`), two arrays
-    instead of fifty, which is most of the cost of a short chunk's dispatch."""
-    n, m = np.shape(state.q)[-1], np.shape(state.lam)[-1]
-    unused = _start(0.0, 0.0, ControlOptions(0, 0.0, 0.0, 0.0, 0.0), np.zeros(n), np.zeros(n), np.zeros(m))
-    return _run_chunk(problem, method, controller, output, packing, False, packing.pack(state, np), unused, args,
-                      length, every, t_eval)
-
-
-def _run_chunk(problem, method, controller, output, packing, fresh, packed, start, args, length, every, t_eval):
-    """One compiled chunk; its output comes to the host in one transfer, and the rows are
-    unpacked there (NumPy views)."""
-    out = _run_packed(problem, method, controller, output, packing, np.asarray(fresh), *packed, start, args, length,
-                      every, t_eval, row_capacity(length, int(every)))
-    packed, chunk = jax.device_get(out)
-    n, m = start[3].shape[-1], start[5].shape[-1]
-    return packing.unpack(*packed), chunk._replace(rows=_unpack_rows(*chunk.rows, n, m))
-
-
-class IntegrateResult(NamedTuple):
-    """What :func:`integrate` returns (unpacks as ``q, p, lam, status``).
-
-    Attributes
-    ----------
-    q, p : jax.Array, shape (n_steps + 1, n)
-        Time-major; row 0 is the initial value, the rows after a failed step are NaN.
-    lam : jax.Array, shape (n_steps + 1, m)
-    status : jax.Array, int32
-        The :class:`Result` code: 0 on success, else the first failure's code.
-    """
-
-    q: jax.Array  # (n_steps + 1, n)
-    p: jax.Array  # (n_steps + 1, n)
-    lam: jax.Array  # (n_steps + 1, m)
-    status: jax.Array  # int32 Result code: 0 on success, else the first failure's code
-
-
-def _with_initial(x0, rows):
-    return jnp.concatenate([x0[None], rows])
-
-
-def _integrate(problem, method, n_steps, checkpoints, t0, h, q0, p0, lam0, args):
-    controller = ConstantStepSize()
-    options = ControlOptions(n=n_steps)
-    state = init_state(problem, method, controller, Output(), t0, t0 + n_steps * h, options, q0, p0, lam0, args)
-    state, steps = scan_run(problem, method, controller, state, args, n_steps, checkpoints)
-    return IntegrateResult(_with_initial(q0, steps.q), _with_initial(p0, steps.p), _with_initial(lam0, steps.lam), state.result)
-
-
-_integrate_compiled = jax.jit(_integrate, static_argnums=(0, 1, 2, 3))
-
-
-#: ``checkpoints="auto"`` (the default of the differentiable entry points): a scan of at least
-#: AUTO_CHECKPOINTS_FROM attempts is split into ``round(√length)`` checkpointed segments. Reverse
-#: mode then keeps O(√length) states instead of O(length) and is also faster (measured: 1.3x on
-#: the falling disk, 1.3-1.4x on the sleigh, benchmarks/gradients.py), while the forward pass runs
-#: the same attempts bit for bit (within noise of the plain scan's time).
-AUTO_CHECKPOINTS_FROM = 100
-
-
-def resolve_checkpoints(checkpoints, length: int) -> int | None:
-    """The number of checkpointed segments of a scan of ``length`` attempts: ``checkpoints`` as
-    given (a positive integer, or None for none), or for ``"auto"`` the rule above."""
-    if checkpoints == "auto":
-        return int(round(math.sqrt(length))) if length >= AUTO_CHECKPOINTS_FROM else None
-    if checkpoints is not None and (isinstance(checkpoints, bool) or not isinstance(checkpoints, (int, np.integer))
-                                    or checkpoints < 1):
-        raise LobattoDAEInputError(
-            f"checkpoints must be 'auto' (the default: √length segments for long runs), None (keep every "
-            f"step for reverse mode) or a positive integer number of segments; got {checkpoints!r}."
-        )
-    return None if checkpoints is None else int(checkpoints)
-
-
-def _check_count(name: str, value) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise LobattoDAEInputError(f"{name} must be a positive integer (it sets the output shape); got {value!r}.")
-
-
-def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam0, args=None, *,
-              checkpoints: int | str | None = "auto") -> IntegrateResult:
-    """Pure, jit/vmap/grad-able integration of ``n_steps`` steps of size ``h`` (no input checks).
-
-    The building block for batched use: ``jax.vmap(integrate, ...)`` over initial values or
-    ``args``. The initial values must be consistent (see :func:`consistent_lambda`); nothing
-    is validated here. Compiled once per (problem, method, n_steps, checkpoints, shapes):
-    reuse one problem object and pass parameters through ``args``. ``h < 0`` integrates
-    backwards.
-
-    Differentiable in every mode (``jax.grad``, ``vjp``, ``jvp``, ``jacfwd``, ``jacrev``)
-    with respect to ``t0``, ``h``, ``q0``, ``p0``, ``lam0`` and the float leaves of ``args``:
-    the derivatives are those of the discrete map (the exact stage solutions, by the implicit
-    function theorem; Newton's iterations are never differentiated). Reverse mode keeps each
-    step's state and stages with ``checkpoints=None``, O(n_steps × state) memory;
-    ``checkpoints=k`` keeps k segment starts instead and recomputes each segment in the
-    backward pass (O(k + n_steps/k) memory, Newton's iterations run again). The default
-    ``"auto"`` takes k = round(√n_steps) from 100 steps on (:data:`AUTO_CHECKPOINTS_FROM`):
-    O(√n_steps) memory, and on the measured problems a faster gradient than keeping every
-    step. The forward values do not depend on ``checkpoints``.
-
-    Parameters
-    ----------
-    problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
-    method : LobattoIIIAIIIB
-    t0, h : float
-        Initial time and step size.
-    n_steps : int
-        Number of steps (static: it sets the output's shape).
-    q0, p0 : array_like, shape (n,)
-    lam0 : array_like, shape (m,)
-        Consistent initial values (:func:`consistent_lambda`, :func:`project_momenta`).
-    args : pytree, optional
-        Passed to the problem functions.
-    checkpoints : "auto", int or None
-        Reverse-mode memory: see above.
-
-    Returns
-    -------
-    IntegrateResult
-        ``(q, p, lam, status)``: time-major arrays with ``n_steps + 1`` rows (row 0 is the
-        initial value) and the :class:`Result` code (0 on success, else the first failure's
-        code). The rows after a failed step are NaN.
-    """
-    _check_count("n_steps", n_steps)
-    checkpoints = resolve_checkpoints(checkpoints, n_steps)
-    cast = functools.partial(jnp.asarray, dtype=jnp.float64)
-    return _integrate_compiled(problem, method, n_steps, checkpoints, cast(t0), cast(h), cast(q0), cast(p0), cast(lam0),
-                               args)
-
-
-def _check_concrete_times(t_span, t_eval) -> None:
-    """:func:`~lobattodae.solve`'s rules for ``t_span`` and ``t_eval`` of :func:`integrate_adaptive`,
-    where they are concrete numbers (outside jit/vmap/grad; traced ones are checked in the graph,
-    ``Result.INVALID_T_EVAL``): no run that returns rows at the wrong times."""
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((t_span, t_eval))):
-        return
-    from ._solve import _check_t_eval, _check_t_span  # solve's messages (solve imports this module)
-
-    t0, t1 = _check_t_span(t_span)
-    _check_t_eval(t_eval, t0, t1)
-
-
-class AdaptiveResult(NamedTuple):
-    """What :func:`integrate_adaptive` returns.
-
-    Attributes
-    ----------
-    t : jax.Array, shape (rows,)
-        The step points (row 0: t0) or the ``t_eval`` times.
-    q, p : jax.Array, shape (rows, n)
-    lam : jax.Array, shape (rows, m)
-    n_rows : jax.Array, int32
-        The valid rows (the rest are NaN).
-    n_steps, n_rejected : jax.Array, int32
-        Accepted steps and rejected attempts.
-    status : jax.Array, int32
-        The :class:`Result` code (``MAX_STEPS`` when ``max_steps`` ran out first).
-    """
-
-    t: jax.Array  # (rows,) step points (row 0: t0) or the t_eval times
-    q: jax.Array  # (rows, n)
-    p: jax.Array  # (rows, n)
-    lam: jax.Array  # (rows, m)
-    n_rows: jax.Array  # int32: the valid rows (the rest are NaN)
-    n_steps: jax.Array  # int32: accepted steps
-    n_rejected: jax.Array  # int32
-    status: jax.Array  # int32 Result code (MAX_STEPS when max_steps ran out first)
-
-
-def _integrate_adaptive(problem, method, controller, max_steps, differentiable, checkpoints, rows, t0, t1, q0, p0,
-                        lam0, args, options, t_eval):
-    output = t_eval_output(rows)
-    state = init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args)
-    if differentiable:
-        out = _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval,
-                             rows)
-        return out._replace(status=_t_eval_status(out.status, t0, t1, t_eval).astype(jnp.int32))
-    length = max_steps if t_eval is None else t_eval.shape[0]
-    state, chunk = run(problem, method, controller, output, state, args, length, 1, t_eval, max_attempts=max_steps)
-    rec = _unpack_rows(*chunk.rows, q0.shape[-1], lam0.shape[-1])
-    reached = controller.done(state.controller) | (t_eval is not None and chunk.n_rows == length)  # every row written
-    status = jnp.where((state.result == Result.SUCCESSFUL) & ~reached, Result.MAX_STEPS, state.result)
-    status = _t_eval_status(status, t0, t1, t_eval).astype(jnp.int32)
-    if t_eval is None:
-        return AdaptiveResult(
-            _with_initial(t0, rec.t), _with_initial(q0, rec.q), _with_initial(p0, rec.p), _with_initial(lam0, rec.lam),
-            chunk.n_rows + 1, state.n_accepted, state.n_rejected, status,
-        )
-    return AdaptiveResult(rec.t, rec.q, rec.p, rec.lam, chunk.n_rows, state.n_accepted, state.n_rejected, status)
-
-
-def _t_eval_status(status, t0, t1, t_eval):
-    """``status``, or ``Result.INVALID_T_EVAL`` for a run that would succeed with a ``t_eval``
-    that has a NaN, a time outside ``[t0, t1]`` or is not sorted in the direction of
-    integration (checked in the graph: under jit/vmap it cannot be refused before the run)."""
-    if t_eval is None:
-        return status
-    direction = jnp.where(t1 >= t0, 1.0, -1.0)
-    s = direction * (t_eval - t0)
-    valid = jnp.all(jnp.isfinite(t_eval)) & jnp.all((s >= 0) & (s <= direction * (t1 - t0)))
-    valid = valid & jnp.all(direction * jnp.diff(t_eval) >= 0)
-    return jnp.where((status == Result.SUCCESSFUL) & ~valid, Result.INVALID_T_EVAL, status)
-
-
-def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval,
-                   rows):
-    """:func:`integrate_adaptive` through :func:`scan_run` (reverse-mode differentiable).
-
-    The accepted steps are moved to the front of the output (a scatter, which differentiates
-    like a gather); ``t_eval`` rows are read from the accepted steps' dense output after the
-    loop, each from the step that contains its time.
-    """
-    state, steps = scan_run(problem, method, controller, state, args, max_steps, checkpoints, dense=t_eval is not None,
-                            t_eval=t_eval if rows == "step" else None)
-    n_rows = jnp.sum(steps.kept.astype(jnp.int32))
-    at = jnp.where(steps.kept, jnp.cumsum(steps.kept) - 1, max_steps)
-
-    def front(x):
-        return jnp.full_like(x, jnp.nan).at[at].set(x, mode="drop")
-
-    status = jnp.where((state.result == Result.SUCCESSFUL) & ~controller.done(state.controller), Result.MAX_STEPS,
-                       state.result).astype(jnp.int32)
-    if t_eval is None:
-        rows = [_with_initial(x0, front(x)) for x0, x in ((t0, steps.t), (q0, steps.q), (p0, steps.p), (lam0, steps.lam))]
-        return AdaptiveResult(*rows, n_rows + 1, state.n_accepted, state.n_rejected, status)
-    n, m = q0.shape[-1], lam0.shape[-1]
-    dense = unpack_dense(front(steps.dense), method.pieces, method.stages, n, m)
-    ends = front(steps.t)
-    direction = jnp.sign(ends[0] - t0)
-    # the step containing t: the first accepted one that ends at or after it
-    k = jnp.sum((direction * (ends[None, :] - t_eval[:, None]) < 0) & (jnp.arange(max_steps) < n_rows), axis=1)
-    inside = k < n_rows
-    k = jnp.minimum(k, max_steps - 1)
-    pick = jax.tree_util.tree_map(lambda x: x[k], dense)
-    q, p, lam = jax.vmap(lambda st, tt: evaluate(method.pair, st, tt))(pick, t_eval)
-    if rows == "project":
-        q, p, lam = jax.vmap(lambda tt, *x: project_row(problem, tt, *x, args))(t_eval, q, p, lam)
-    nan = functools.partial(jnp.where, inside[:, None])
-    return AdaptiveResult(jnp.where(inside, t_eval, jnp.nan), nan(q, jnp.nan), nan(p, jnp.nan), nan(lam, jnp.nan),
-                          jnp.sum(inside.astype(jnp.int32)), state.n_accepted, state.n_rejected, status)
-
-
-_integrate_adaptive_compiled = jax.jit(_integrate_adaptive, static_argnums=(0, 1, 2, 3, 4, 5, 6))
-
-
-def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, args=None, *, rtol=1e-8, atol=1e-10,
-                       first_step=0.0, max_step=jnp.inf, max_steps: int = 4096, t_eval=None,
-                       controller=PIController(), differentiable: bool = False,
-                       checkpoints: int | str | None = "auto", t_eval_rows: str | None = None) -> AdaptiveResult:
-    """Pure, jit/vmap-able integration with error-controlled (or reversible) step sizes.
-
-    The same loop and controllers as :func:`~lobattodae.solve` without the input checks, for
-    batched use (``jax.vmap`` over initial values, ``args``, tolerances or ``t_span``). At most
-    ``max_steps`` step attempts (a static bound: it sizes the output); running out of them is
-    the status ``Result.MAX_STEPS``, never a silent truncation. ``t_span = (t0, t1)`` with
-    ``t1 < t0`` integrates backwards.
-
-    Forward-mode derivatives (``jax.jvp``, ``jacfwd``) always work. Reverse mode (``jax.grad``,
-    ``vjp``, ``jacrev``) needs ``differentiable=True``: the loop then runs as a fixed-length
-    scan of ``max_steps`` attempts (those after the end are skipped, but under ``vmap`` every
-    lane computes all of them, so keep ``max_steps`` close to what the run needs), and
-    ``checkpoints`` trades memory for recomputation as in :func:`integrate`. The derivatives
-    are those of the discrete map along the step sequence the run chose: the step-size
-    choices are not differentiated (only the last step, clipped to end on ``t1``, moves with
-    ``t_span``; ``docs/gradients.md``).
-
-    Parameters
-    ----------
-    problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
-    method : LobattoIIIAIIIB
-    t_span : (float, float)
-    q0, p0 : array_like, shape (n,)
-    lam0 : array_like, shape (m,)
-        Consistent initial values.
-    args : pytree, optional
-    rtol, atol, first_step, max_step : float
-        As in :func:`~lobattodae.solve` (``first_step=0``: chosen automatically).
-    max_steps : int
-        Step attempts at most (static: it sizes the output without ``t_eval``).
-    t_eval : array_like, optional
-        Output times instead of step points.
-    controller : PIController or ReversibleStepSize
-    differentiable : bool
-        Run as a fixed-length scan, so that reverse mode works (see above).
-    checkpoints : "auto", int or None
-        Reverse-mode memory with ``differentiable=True``, as in :func:`integrate`.
-    t_eval_rows : {"step", "interpolate", "project"}, optional
-        As in :func:`~lobattodae.solve`.
-
-    Returns
-    -------
-    AdaptiveResult
-        ``(t, q, p, lam, n_rows, n_steps, n_rejected, status)``: without ``t_eval`` the step
-        points (row 0 is the initial value; ``max_steps + 1`` rows, those past ``n_rows`` NaN),
-        with ``t_eval`` (an array, sorted in the direction of integration) one row per time.
-        ``t_eval_rows`` as in :func:`~lobattodae.solve` (default: error-controlled steps end
-        on the ``t_eval`` times). ``t_span`` and ``t_eval`` given as numbers are checked as
-        :func:`~lobattodae.solve` checks them (:class:`~lobattodae.LobattoDAEInputError`); traced
-        ones (under ``jit``/``vmap``) that have a NaN, a time outside ``t_span`` or are unsorted
-        give the status ``Result.INVALID_T_EVAL`` instead of success.
-    """
-    _check_count("max_steps", max_steps)
-    checkpoints = resolve_checkpoints(checkpoints, max_steps)
-    if not isinstance(differentiable, bool):
-        raise LobattoDAEInputError(f"differentiable must be True or False; got {differentiable!r}.")
-    rows = t_eval_rows_mode(t_eval_rows, controller, t_eval is not None)
-    _check_concrete_times(t_span, t_eval)
-    method = for_error_control(method, controller)
-    cast = functools.partial(jnp.asarray, dtype=jnp.float64)
-    t0, t1 = (cast(x) for x in t_span)
-    options = ControlOptions(1, rtol, atol, first_step, max_step)
-    t_eval = None if t_eval is None else cast(t_eval)
-    return _integrate_adaptive_compiled(
-        problem, method, controller, max_steps, differentiable, checkpoints if differentiable else None, rows, t0,
-        t1, cast(q0), cast(p0), cast(lam0), args, options, t_eval,
-    )

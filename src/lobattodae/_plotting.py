@@ -10,6 +10,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ._animation import known_system
+from ._mpl import pyplot as _plt
+
 __all__ = ["plot", "plot_convergence", "plot_solution"]
 
 #: :func:`plot` shows Newton iterations per step up to this many steps, above it a moving
@@ -18,22 +21,6 @@ NEWTON_STEPS = 500
 NEWTON_BINS = 200
 
 _LABELS = {"q": "q", "p": "p", "lam": "λ"}
-
-
-def _plt():
-    import matplotlib
-
-    if matplotlib.get_backend().lower() not in ("agg",) and not _interactive():
-        matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _interactive() -> bool:
-    import sys
-
-    return hasattr(sys, "ps1") or "ipykernel" in sys.modules
 
 
 def plot_convergence(study, axes=None, components=("q", "p", "lam")):
@@ -267,8 +254,6 @@ def plot(
     q = np.asarray(sol.q, dtype=float)
     n = q.shape[1] if q.ndim == 2 else 0
     problem = getattr(sol, "problem", None)
-    from ._animation import known_system
-
     system = known_system(problem)
     labels = list(labels) if labels is not None else (
         list(system.labels) if system is not None and len(system.labels) == n else [f"q[{i}]" for i in range(n)])

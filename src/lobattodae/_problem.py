@@ -188,7 +188,8 @@ class MechanicalSystem(_HamiltonianMixin):
     r"""A mechanical system ``H = ½ pᵀ M(q)⁻¹ p + V(q)`` with constraints ``μ(q) q' = 0``.
 
     ``q' = M(q)⁻¹ p`` is computed by a linear solve without pivoting (written out column by
-    column for n ≤ 8, about 2x faster per step on CPU than a LAPACK call), and
+    column for n ≤ 8, faster per step on CPU than a LAPACK call: see the
+    [benchmarks page](../benchmarks/index.md)), and
     ``D_p φ · D_λ g = μ M⁻¹ μᵀ``. ``M(q0)`` is checked to be symmetric positive definite
     when a solve starts.
 
@@ -219,16 +220,85 @@ class MechanicalSystem(_HamiltonianMixin):
         )
 
     def hamiltonian(self, t, q, p, args):
+        """The energy ``H = ½ pᵀ M(q)⁻¹ p + V(q)``.
+
+        Parameters
+        ----------
+        t : float
+            Time.
+        q, p : array, shape (n,)
+            Position and momentum.
+        args : pytree
+            Passed to ``mass_matrix``, ``potential`` and ``constraint_matrix``.
+
+        Returns
+        -------
+        jax.Array
+            H, a scalar.
+        """
         v = spd_solve(self.mass_matrix(t, q, args), p)
         return 0.5 * jnp.dot(p, v) + self.potential(t, q, args)
 
     def f(self, t, q, p, args):
+        """``f = ∂H/∂p = M(q)⁻¹ p``, the velocity q'.
+
+        Parameters
+        ----------
+        t : float
+            Time.
+        q, p : array, shape (n,)
+            Position and momentum.
+        args : pytree
+            Passed to ``mass_matrix``, ``potential`` and ``constraint_matrix``.
+
+        Returns
+        -------
+        jax.Array, shape (n,)
+            ``M(q)⁻¹ p``.
+        """
         return spd_solve(self.mass_matrix(t, q, args), p)
 
     def g(self, t, q, p, lam, args):
+        """``g = -∂H/∂q + μ(q)ᵀ λ``, the momentum's rate p'.
+
+        Parameters
+        ----------
+        t : float
+            Time.
+        q, p : array, shape (n,)
+            Position and momentum.
+        lam : array, shape (m,)
+            The multiplier λ.
+        args : pytree
+            Passed to ``mass_matrix``, ``potential`` and ``constraint_matrix``.
+
+        Returns
+        -------
+        jax.Array, shape (n,)
+            ``½ vᵀ (∂M/∂q) v − ∇V + μᵀ λ`` with ``v = M⁻¹ p``.
+        """
         return self.f_and_g(t, q, p, lam, args)[1]
 
     def f_and_g(self, t, q, p, lam, args):
+        """``(f, g)`` together, with one linear solve for ``v = M(q)⁻¹ p`` (the derivative of
+        the kinetic energy in q is taken with v held fixed, not through the solve).
+
+        Parameters
+        ----------
+        t : float
+            Time.
+        q, p : array, shape (n,)
+            Position and momentum.
+        lam : array, shape (m,)
+            The multiplier λ.
+        args : pytree
+            Passed to ``mass_matrix``, ``potential`` and ``constraint_matrix``.
+
+        Returns
+        -------
+        f, g : jax.Array, shape (n,)
+            As :meth:`f` and :meth:`g`.
+        """
         # -∂H/∂q = ½ vᵀ (∂M/∂q) v - ∇V with v = M⁻¹p held fixed: no derivative of the solve.
         v = self.f(t, q, p, args)
         kinetic = jax.grad(lambda qq: 0.5 * jnp.dot(v, self.mass_matrix(t, qq, args) @ v))(q)

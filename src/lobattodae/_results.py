@@ -30,7 +30,7 @@ class Result(enum.IntEnum):
     INTERRUPTED : 4
         Ctrl-C (or SIGTERM in the command line); the computed prefix is returned.
     STEP_SIZE_TOO_SMALL : 5
-        Adaptive steps fell below 1e-14·|t|.
+        Adaptive steps fell below ``1e-14·max(|t|, |t1 - t0|)``.
     MAX_STEPS : 6
         The step limit ``max_steps`` was reached before the end of the interval.
     EVENT : 7
@@ -44,6 +44,10 @@ class Result(enum.IntEnum):
         ``t_eval`` given to :func:`~lobattodae.integrate_adaptive` under a JAX transformation
         (where it cannot be checked first) has a NaN, a time outside ``t_span`` or is not
         sorted in the direction of integration; its rows are not to be trusted.
+    success : bool
+        Of a member: True for ``SUCCESSFUL`` and ``EVENT`` (the run reached its end).
+    message : str
+        Of a member: the sentence users see.
     """
 
     SUCCESSFUL = 0

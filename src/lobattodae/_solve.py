@@ -1,528 +1,43 @@
-"""``solve``: integrate a partitioned index-2 DAE over an interval and return a :class:`Solution`.
+"""``solve``: integrate a partitioned index-2 DAE over an interval and return a :class:`~lobattodae.Solution`.
 
-The order of work: validate every option (paths included) → validate the problem and the
-initial values → compiled chunks of the loop, the first of which also makes the loop
-:class:`~lobattodae._loop.State` (progress, Ctrl-C, checkpoints, recovery of failed steps)
-→ :class:`Solution`.
+It reads in the order of the work: options (:class:`~lobattodae._options.RunOptions`, every
+one checked, paths included) → checks of the problem and the initial values → compiled
+chunks of the loop (:mod:`lobattodae._chunks`; the first also makes the loop state) with
+progress, Ctrl-C, checkpoints and recovery of failed steps between them →
+:func:`~lobattodae._solution.assemble` makes the :class:`~lobattodae.Solution`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import errno
-import math
 import os
-import signal
-import sys
-import threading
 import time
-import warnings
-from contextlib import contextmanager
-from dataclasses import dataclass, field
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checkpoint
-from ._errors import LobattoDAEInputError, NewtonFailure
-from ._controllers import MIN_RELATIVE_STEP, ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
-from ._dense import DenseOutput, dense_size, stacked
-from ._events import as_events
-from ._loop import CHUNK, Output, Record, State, init_host, run_host, start_host, t_eval_output, t_eval_rows_mode
-from ._results import Result
+from ._chunks import Progress, init_host, run_host, start_host
+from ._controllers import ConstantStepSize, ControlOptions
 from ._doubling import for_error_control
+from ._errors import LobattoDAEInputError
+from ._io import checkpoint as _checkpoint
+from ._io import fingerprint_arrays, fingerprint_callable
+from ._loop import Output, State
+from ._options import RunOptions
+from ._progress import ProgressBar, deferred_interrupts, progress_reporter
+from ._results import Result
+from ._rows import ROW_FIELDS, Record
+from ._solution import Solution, assemble
 from ._stepper import LobattoIIIAIIIB
-from ._validate import check_float64, check_tolerance_attainable, validate_and_residual
+from ._validate import check_float64, validate_and_residual
 
-__all__ = ["SCIPY_STATUS", "STATS", "Solution", "solve"]
-
-#: The keys of ``Solution.stats`` (the one place they are documented). "Rows" are the output
-#: rows after the initial one: step points (every ``save_every``-th) or ``t_eval`` times.
-STATS = {
-    "newton_iterations": "(rows,) Newton iterations of the step that produced each row",
-    "residual_norm": "(rows,) max-norm of that step's last Newton residual",
-    "constraint_residual": "(N+1,) ‖φ(t_k, q_k, p_k)‖∞ at the output rows (with t_eval: between steps, on the dense output)",
-    "multiplier_drift": "(N+1,) ‖λ_k − λ(t_k, q_k, p_k)‖∞ of the step that produced each row",
-    "lam_resync": "(rows,) bool: that step started from λ(t_k, q_k, p_k) (lam_start='auto' re-synchronised λ)",
-    "lam_resets": "number of re-synchronisations of λ in the output rows (lam_start='auto')",
-    "lam_excursions": "steps where the drift left its normal band (re-synchronised with 'auto', only counted otherwise)",
-    "max_constraint_residual": "max ‖φ‖∞ over every step point (saved or not) and every row returned (t_eval rows "
-                               "lie between step points)",
-    "max_multiplier_drift": "max ‖λ − λ(t, q, p)‖∞ over every step point",
-    "n_jacobians": "Newton Jacobian evaluations (each with one factorisation)",
-    "n_newton": "Newton iterations in all",
-    "n_steps": "accepted steps",
-    "n_rejected": "rejected step attempts (error test or Newton failure; adaptive steps)",
-    "h": "the constant step size, or None for adaptive steps",
-    "n_clamped": "ReversibleStepSize: steps whose control variable ρ was clamped (MAX_DENSITY_CHANGE), each one "
-                 "unsymmetric, so 0 for a reversible run; None for other step-size rules",
-    "failed_step": "index of the failed step, or None",
-    "recoveries": "failed steps retried as substeps (max_recoveries, constant steps)",
-    "compile_and_run_time": "wall time of the integration loop, compilation included (s)",
-}
+__all__ = ["solve"]
 
 #: Automatic recovery retries a failed step as 2, 4, 8, 16 substeps (one compiled chunk of 16).
 _RECOVERY_HALVINGS = 4
-#: Default tolerances of adaptive steps.
-RTOL, ATOL = 1e-8, 1e-10
-_EPS = float(np.finfo(np.float64).eps)
-
-
-@dataclass(frozen=True, eq=False)
-class Solution:
-    """The result of :func:`solve` (time-major NumPy arrays, with scipy's views beside them).
-
-    Attributes
-    ----------
-    t : ndarray, shape (k,)
-        The initial time and the kept step points, or the ``t_eval`` times.
-    q, p : ndarray, shape (k, n)
-    lam : ndarray, shape (k, m)
-        The multiplier λ_k at t_k (λ_0 is the consistent initial value).
-    success : bool
-        The run reached the end of the interval or a terminal event.
-    result : Result
-        ``SUCCESSFUL``, ``EVENT`` (a terminal event) or the reason the run stopped early.
-    message : str
-    stats : dict
-        Counters and per-row diagnostics; the keys are documented in :data:`STATS`
-        (``lobattodae.STATS``). When the solve stopped early the arrays hold the computed prefix.
-    t_events, q_events, p_events, lam_events : list of ndarray or None
-        One array per event function: the times and states of its zeros (None without
-        events).
-    sol : DenseOutput or None
-        ``sol(t) -> (q, p, lam)`` between the step points (``dense_output=True``);
-        ``sol(t, layout="scipy")`` returns scipy's stacked ``(2n + m, k)`` layout.
-    problem, method, args
-        What was solved, for diagnostics.
-
-    The views in ``scipy.integrate.solve_ivp``'s layout and vocabulary: :attr:`y`,
-    :attr:`y_events`, :attr:`status`, :attr:`nfev`, :attr:`njev`, :attr:`nlu`.
-
-    Examples
-    --------
-    >>> sol = L.solve(problem, L.LobattoIIIAIIIB(stages=4), (0.0, 2.0), q0, p0)  # doctest: +SKIP
-    >>> sol.y.shape                       # (2n + m, k), as solve_ivp lays it out  # doctest: +SKIP
-    >>> sol.status, sol.result.name       # 0, 'SUCCESSFUL'  # doctest: +SKIP
-    """
-
-    t: np.ndarray
-    q: np.ndarray
-    p: np.ndarray
-    lam: np.ndarray
-    success: bool
-    result: Result
-    message: str
-    stats: dict = field(repr=False)
-    problem: Any = field(repr=False, default=None)
-    method: Any = field(repr=False, default=None)
-    args: Any = field(repr=False, default=None)
-    t_events: list | None = field(repr=False, default=None)
-    q_events: list | None = field(repr=False, default=None)
-    p_events: list | None = field(repr=False, default=None)
-    lam_events: list | None = field(repr=False, default=None)
-    sol: DenseOutput | None = field(repr=False, default=None)
-
-    # -- scipy's views -------------------------------------------------------------------------
-    @property
-    def status(self) -> int:
-        """scipy's status: 0 the end of the interval was reached, 1 a terminal event, −1 the run
-        stopped early (the reason is :attr:`result`)."""
-        return SCIPY_STATUS.get(self.result, -1)
-
-    @property
-    def y(self) -> np.ndarray:
-        """``[q; p; λ]`` stacked as ``solve_ivp`` lays out ``y``: shape (2n + m, k), one column per time."""
-        return stacked(self.q, self.p, self.lam).T
-
-    @property
-    def y_events(self) -> list | None:
-        """One (k_j, 2n + m) array per event function, the rows ``[q, p, λ]`` at its zeros (None
-        without events), as ``solve_ivp``'s ``y_events``."""
-        if self.t_events is None:
-            return None
-        return [stacked(q, p, lam) for q, p, lam in zip(self.q_events, self.p_events, self.lam_events)]
-
-    @property
-    def nfev(self) -> int:
-        """Evaluations of the right-hand side (f, g) at a stage point in Newton's iterations
-        (s per iteration: ``stats["n_newton"]`` × s)."""
-        return self.stats["n_newton"] * self.method.stages
-
-    @property
-    def njev(self) -> int:
-        """Jacobians of the stage equations (``stats["n_jacobians"]``)."""
-        return self.stats["n_jacobians"]
-
-    @property
-    def nlu(self) -> int:
-        """LU factorisations: one per Jacobian (``stats["n_jacobians"]``)."""
-        return self.stats["n_jacobians"]
-
-    def __repr__(self) -> str:
-        return (
-            f"Solution(success={self.success}, result={self.result.name}, n_steps={self.stats['n_steps']}, "
-            f"t=[{self.t[0]:g}, {self.t[-1]:g}], max constraint residual="
-            f"{self.stats['max_constraint_residual']:.2e})"
-        )
-
-
-#: ``Result`` → scipy's ``status``: 0 the end was reached, 1 a terminal event; every other result is −1.
-SCIPY_STATUS = {Result.SUCCESSFUL: 0, Result.EVENT: 1}
-
-
-# -- options ------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Options:
-    """Every option of :func:`solve`, checked before any work is done."""
-
-    t0: float
-    t1: float
-    n: int | None  # constant steps: their number (None: adaptive)
-    h: float | None
-    control: ControlOptions  # numbers (tolerances, step bounds)
-    controller: Any  # the controller object (static)
-    output: Output
-    t_eval: np.ndarray | None
-    every: int
-    chunk: int
-    max_recoveries: int
-    checkpoint: str | None
-    checkpoint_every: int | None
-    resume: bool
-    max_steps: int = 0  # adaptive steps: the cap on step attempts (0 for constant steps)
-
-    @property
-    def adaptive(self) -> bool:
-        return self.n is None
-
-    @classmethod
-    def check(cls, method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output,
-              events, save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume, t_eval_rows=None,
-              max_steps=None):
-        if not isinstance(method, LobattoIIIAIIIB):
-            raise TypeError(
-                f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3); got {method!r}."
-            )
-        check_tolerance_attainable(method)
-        t0, t1 = _check_t_span(t_span)
-        constant = n_steps is not None or dt is not None
-        if constant:
-            n, h = _step_count(t0, t1, n_steps, dt)
-            for name, value in (("rtol", rtol), ("atol", atol), ("first_step", first_step), ("controller", controller)):
-                if value is not None:
-                    raise LobattoDAEInputError(
-                        f"{name} applies to adaptive steps; drop n_steps/dt to let the solver choose the steps, "
-                        f"or drop {name}."
-                    )
-            if max_step is not None and not math.isinf(_positive_float("max_step", max_step, allow_inf=True)):
-                raise LobattoDAEInputError("max_step applies to adaptive steps; with constant steps use dt.")
-            control, ctrl = ControlOptions(n=n), ConstantStepSize()
-            if max_steps is not None:
-                raise LobattoDAEInputError("max_steps applies to adaptive steps; constant steps take n_steps (or dt).")
-            max_steps = 0
-        else:
-            n = h = None
-            rtol = RTOL if rtol is None else _positive_float("rtol", rtol)
-            atol = ATOL if atol is None else _positive_float("atol", atol, allow_zero=True)
-            if rtol < 100 * _EPS:
-                raise LobattoDAEInputError(
-                    f"rtol={rtol:g} is below what float64 can deliver; use rtol >= {100 * _EPS:.1e}."
-                )
-            first = 0.0 if first_step is None else _positive_float("first_step", first_step)
-            if first > abs(t1 - t0):
-                raise LobattoDAEInputError(f"first_step={first:g} is longer than the interval |t1 - t0| = {abs(t1 - t0):g}.")
-            biggest = math.inf if max_step is None else _positive_float("max_step", max_step, allow_inf=True)
-            _check_resolvable_steps(t0, t1, first, biggest)
-            control = ControlOptions(1, rtol, atol, first, biggest)
-            max_steps = _check_max_steps(max_steps, t0, t1, biggest)
-            ctrl = PIController() if controller is None else controller
-            if not isinstance(ctrl, (PIController, ReversibleStepSize)):
-                raise LobattoDAEInputError(
-                    f"controller must be lobattodae.PIController(...) or lobattodae.ReversibleStepSize(...); got {ctrl!r}."
-                )
-        t_eval = _check_t_eval(t_eval, t0, t1)
-        every = _check_save_every(save_every)
-        if t_eval is not None and save_every not in (None, 1):
-            raise LobattoDAEInputError("give t_eval (rows at given times) or save_every (every k-th step point), not both.")
-        output = t_eval_output(t_eval_rows_mode(t_eval_rows, ctrl, t_eval is not None), bool(dense_output),
-                               as_events(events), ctrl)
-        if chunk_size is not None and (isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1):
-            raise LobattoDAEInputError(f"chunk_size must be a positive integer; got {chunk_size!r}.")
-        if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
-            raise LobattoDAEInputError(f"max_recoveries must be a non-negative integer; got {max_recoveries!r}.")
-        if max_recoveries and (not constant or output != Output()):
-            raise LobattoDAEInputError(
-                "max_recoveries applies to constant steps without t_eval, events or dense_output; adaptive steps "
-                "recover from failed steps by themselves (drop n_steps/dt)."
-            )
-        if checkpoint_every is not None and (
-            isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int) or checkpoint_every < 1
-        ):
-            raise LobattoDAEInputError(f"checkpoint_every must be a positive integer; got {checkpoint_every!r}.")
-        if resume and checkpoint is None:
-            raise LobattoDAEInputError("resume=True needs the checkpoint file to resume from (checkpoint=PATH).")
-        if checkpoint_every is not None and checkpoint is None:
-            raise LobattoDAEInputError(
-                "checkpoint_every sets how often the checkpoint file is written; give the file (checkpoint=PATH) or "
-                "drop checkpoint_every."
-            )
-        path = None
-        if checkpoint is not None:
-            path = os.fspath(checkpoint)
-            check_writable(path, "checkpoint")
-            rows_dir = _checkpoint.rows_directory(path)
-            _checkpoint.check_rows_directory(path)  # a symbolic link there is refused before any work
-            if os.path.lexists(rows_dir) and not os.path.isdir(rows_dir):
-                raise LobattoDAEInputError(
-                    f"cannot write the checkpoint '{path}': its rows go to the directory '{rows_dir}', and something "
-                    "else is there; remove it or choose another checkpoint path."
-                )
-        return cls(t0, t1, n, h, control, ctrl, output, t_eval, every, chunk_size or CHUNK, max_recoveries, path,
-                   checkpoint_every, bool(resume), max_steps)
-
-
-#: The default cap on the step attempts of an adaptive ``solve`` (as scipy and diffrax cap theirs):
-#: far above any run the tolerances ask for, and low enough that no counter can overflow.
-MAX_STEPS = 10_000_000
-#: The largest cap: every counter of the loop is int32 and a step attempt counts up to three
-#: Newton solves of ``max_iterations`` iterations each.
-_MAX_STEPS_LIMIT = 20_000_000
-
-
-def _check_max_steps(max_steps, t0: float, t1: float, max_step: float) -> int:
-    """The cap on step attempts; refuses up front a ``max_step`` that would need more steps."""
-    if max_steps is None:
-        max_steps = MAX_STEPS
-    elif isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or not 0 < max_steps <= _MAX_STEPS_LIMIT:
-        raise LobattoDAEInputError(
-            f"max_steps must be a positive integer up to {_MAX_STEPS_LIMIT:,} (the cap on step attempts); got "
-            f"{max_steps!r}. Split a longer run into several solve calls (or use checkpoint/resume)."
-        )
-    needed = abs(t1 - t0) / max_step
-    if needed > max_steps:
-        raise LobattoDAEInputError(
-            f"max_step={max_step:g} needs at least {needed:.3g} steps over |t1 - t0| = {abs(t1 - t0):g}, more than "
-            f"max_steps={max_steps:,}; raise max_step (or max_steps)."
-        )
-    return int(max_steps)
-
-
-def _check_resolvable_steps(t0: float, t1: float, first_step: float, max_step: float) -> None:
-    """Refuse up front a ``first_step`` or ``max_step`` below the smallest step the run can take,
-    ``MIN_RELATIVE_STEP·max(|t|, |t1 - t0|)`` (a shorter one ends the run as
-    ``STEP_SIZE_TOO_SMALL``, whose message would blame the problem)."""
-    span = abs(t1 - t0)
-    for name, value, largest_t in (("first_step", first_step, abs(t0)), ("max_step", max_step, max(abs(t0), abs(t1)))):
-        smallest = MIN_RELATIVE_STEP * max(largest_t, span)
-        if 0 < value < smallest:
-            raise LobattoDAEInputError(
-                f"{name}={value:g} is below the smallest step a run can take here, {MIN_RELATIVE_STEP:g}·max(|t|, "
-                f"|t1 - t0|) = {smallest:.3g} (a shorter step is lost in the round-off of t, and the run would end "
-                f"as STEP_SIZE_TOO_SMALL); use {name} >= {smallest:.3g}, or shift t_span towards 0."
-            )
-
-
-def check_writable(path: str, what: str) -> None:
-    """Refuse up front a file that could not be written after the work (missing directory)."""
-    directory = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(directory):
-        raise LobattoDAEInputError(
-            f"cannot write the {what} '{path}': the directory '{directory}' does not exist; create it first."
-        )
-    if not os.access(directory, os.W_OK):
-        raise LobattoDAEInputError(f"cannot write the {what} '{path}': the directory '{directory}' is not writable.")
-    if os.path.isdir(path):
-        raise LobattoDAEInputError(f"cannot write the {what} '{path}': it is a directory.")
-
-
-def _positive_float(name: str, value, allow_zero: bool = False, allow_inf: bool = False) -> float:
-    if isinstance(value, (bool, str)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise LobattoDAEInputError(f"{name} must be a positive number; got {value!r}.")
-    x = float(value)
-    if math.isnan(x) or (math.isinf(x) and not allow_inf) or x < 0 or (x == 0 and not allow_zero):
-        what = "a non-negative" if allow_zero else "a positive"
-        raise LobattoDAEInputError(f"{name} must be {what} finite number; got {name}={value!r}.")
-    return x
-
-
-def _check_save_every(save_every) -> int:
-    if save_every is None:
-        return 1
-    if save_every == "final":
-        return np.iinfo(np.int32).max
-    if isinstance(save_every, bool) or not isinstance(save_every, (int, np.integer)) or save_every < 1:
-        raise LobattoDAEInputError(
-            f"save_every must be a positive integer (keep every k-th step point) or 'final'; got {save_every!r}."
-        )
-    return int(min(save_every, np.iinfo(np.int32).max))
-
-
-def _check_t_eval(t_eval, t0: float, t1: float):
-    if t_eval is None:
-        return None
-    try:
-        if isinstance(t_eval, (str, bytes)):
-            raise TypeError
-        te = np.asarray(t_eval, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise LobattoDAEInputError(f"t_eval must be a 1-D array of times; got {t_eval!r}.") from None
-    te = np.atleast_1d(te)
-    if te.ndim != 1 or te.size == 0:
-        raise LobattoDAEInputError(f"t_eval must be a non-empty 1-D array of times; got shape {te.shape}.")
-    if not np.all(np.isfinite(te)):
-        raise LobattoDAEInputError("t_eval contains NaN or inf; give finite times.")
-    lo, hi = min(t0, t1), max(t0, t1)
-    if np.any(te < lo) or np.any(te > hi):
-        raise LobattoDAEInputError(f"t_eval must lie within t_span = ({t0:g}, {t1:g}); got values in [{te.min():g}, {te.max():g}].")
-    step = np.diff(te) * (1.0 if t1 > t0 else -1.0)
-    if np.any(step < 0):
-        raise LobattoDAEInputError(
-            "t_eval must be sorted in the direction of integration (increasing for t1 > t0, decreasing for t1 < t0)."
-        )
-    return te
-
-
-def _step_count(t0: float, t1: float, n_steps, dt) -> tuple[int, float]:
-    if n_steps is not None and dt is not None:
-        raise LobattoDAEInputError("give at most one of n_steps (number of steps) or dt (step size).")
-    span = abs(t1 - t0)
-    if n_steps is not None:
-        if isinstance(n_steps, bool) or not isinstance(n_steps, (int, np.integer)):
-            raise LobattoDAEInputError(f"n_steps must be a positive integer; got {n_steps!r}.")
-        if n_steps <= 0:
-            raise LobattoDAEInputError(f"n_steps must be a positive integer; got n_steps={n_steps}.")
-        n = int(n_steps)
-    else:
-        if isinstance(dt, (bool, str)) or not isinstance(dt, (int, float, np.integer, np.floating)):
-            raise LobattoDAEInputError(f"dt must be a positive finite number; got {dt!r}.")
-        dt = float(dt)
-        if not (math.isfinite(dt) and dt > 0):
-            raise LobattoDAEInputError(f"dt must be a positive finite step size; got dt={dt!r}.")
-        count = span / dt * (1 - 1e-12)
-        if not math.isfinite(count) or count > _MAX_CONSTANT_STEPS:
-            raise LobattoDAEInputError(
-                f"dt={dt:g} over |t1 - t0| = {span:g} means {count:.3g} steps, more than {_MAX_CONSTANT_STEPS:.0e}; "
-                "use a larger dt, or adaptive steps (drop dt and give rtol/atol)."
-            )
-        n = max(1, math.ceil(count))
-    if n > _MAX_CONSTANT_STEPS:
-        raise LobattoDAEInputError(f"n_steps={n} is more than {_MAX_CONSTANT_STEPS:.0e} steps; the step counter is 32-bit.")
-    h = (t1 - t0) / n
-    if abs(h) < 1e-14 * max(abs(t0), abs(t1)):
-        raise LobattoDAEInputError(
-            f"the step h = {h:g} is below the resolution of t (|t| up to {max(abs(t0), abs(t1)):g}); the times "
-            "t_k would not be distinct. Use fewer steps or shift t_span towards 0."
-        )
-    return n, h
-
-
-#: The step counter is int32.
-_MAX_CONSTANT_STEPS = 2**31 - 2
-
-
-def _check_t_span(t_span) -> tuple[float, float]:
-    try:
-        if isinstance(t_span, (str, bytes)):  # "02" would be (0.0, 2.0)
-            raise TypeError
-        t0, t1 = (float(x) for x in t_span)
-    except (TypeError, ValueError):
-        raise LobattoDAEInputError(f"t_span must be a pair (t0, t1) of numbers; got {t_span!r}.") from None
-    if not (math.isfinite(t0) and math.isfinite(t1)):
-        raise LobattoDAEInputError(f"t_span must be finite; got {t_span!r}.")
-    if t1 == t0:
-        raise LobattoDAEInputError(f"t_span = ({t0}, {t1}) is empty; give t1 != t0 (t1 < t0 integrates backwards).")
-    if abs(t1 - t0) < 1e-13 * max(abs(t0), abs(t1)):
-        raise LobattoDAEInputError(
-            f"t_span = ({t0!r}, {t1!r}) is shorter than the resolution of t at that magnitude (about "
-            f"{_EPS * max(abs(t0), abs(t1)):.2g}); shift the time origin (the problem functions can add it back "
-            "through args)."
-        )
-    return t0, t1
-
-
-# -- the run ------------------------------------------------------------------------------------
-#: Recorded chunks are merged into one block every this many: few NumPy objects, and each
-#: row is copied once more, not once per chunk.
-_MERGE = 32
-
-
-class _Rows(NamedTuple):
-    """Output rows of one kind, immutable: NumPy blocks, each a tuple of fields (arrays with
-    the same number of rows). Appending returns a new value; the trailing unmerged blocks are
-    merged into one every :data:`_MERGE` appends. ``saved``: the first rows, already in the
-    checkpoint (a save writes only the rows after them)."""
-
-    empty: tuple  # the fields with no rows (dtypes and trailing shapes)
-    blocks: tuple = ()
-    merged: int = 0  # the first blocks are merged ones; the others are recent chunks
-    count: int = 0
-    saved: int = 0
-
-    def append(self, block: tuple) -> _Rows:
-        k = len(block[0])
-        if not k:
-            return self
-        block = tuple(np.asarray(x, e.dtype) for x, e in zip(block, self.empty, strict=True))
-        blocks, merged = self.blocks + (block,), self.merged
-        if len(blocks) - merged >= _MERGE:
-            blocks, merged = blocks[:merged] + (_cat(blocks[merged:]),), merged + 1
-        return self._replace(blocks=blocks, merged=merged, count=self.count + k)
-
-    def since(self, start: int) -> tuple:
-        """The fields of the rows from ``start`` on, concatenated (only the blocks holding them
-        are read)."""
-        parts, first = [], self.count
-        for block in reversed(self.blocks):
-            if first <= start:
-                break
-            first -= len(block[0])
-            parts.append(block if first >= start else tuple(x[start - first:] for x in block))
-        return _cat(parts[::-1]) if parts else self.empty
-
-    def all(self) -> tuple:
-        return self.since(0)
-
-    def unsaved(self) -> tuple:
-        return self.since(self.saved)
-
-
-def _cat(blocks) -> tuple:
-    return blocks[0] if len(blocks) == 1 else tuple(np.concatenate(xs) for xs in zip(*blocks))
-
-
-#: The names of the row fields in a checkpoint, per kind of rows.
-_ROW_FIELDS = {"rows": Record._fields, "dense": ("dense",), "events": ("event_rows", "event_index")}
-
-
-class _Progress(NamedTuple):
-    """How far a run got: replaced as a whole (one assignment), so that an interrupt can never
-    see a state that does not belong to its rows."""
-
-    state: State
-    rows: _Rows  # the output rows (Record fields)
-    dense: _Rows | None  # packed dense-output rows (dense_output=True)
-    events: _Rows | None  # (event_rows, event_index) (with events)
-    recoveries: int
-    segments: Any = None  # _checkpoint.Segments of the last checkpoint written or read
-
-    @classmethod
-    def start(cls, state: State, opt: _Options, recoveries: int = 0) -> _Progress:
-        """No rows yet (their shapes from ``state``)."""
-        n, m, (pieces, s) = state.q.shape[-1], state.lam.shape[-1], state.last.V.shape[:2]
-        f, i = np.float64, np.int32
-        rows = (np.zeros(0, f), np.zeros((0, n), f), np.zeros((0, n), f), np.zeros((0, m), f), np.zeros(0, i),
-                np.zeros(0, i), np.zeros(0, f), np.zeros(0, f), np.zeros(0, f), np.zeros(0, bool))
-        dense = _Rows((np.zeros((0, dense_size(pieces, s, n, m)), f),)) if opt.output.dense else None
-        events = _Rows((np.zeros((0, 1 + 2 * n + m), f), np.zeros(0, i))) if opt.output.events else None
-        return cls(state, _Rows(rows), dense, events, recoveries)
-
-    def kinds(self):
-        """``(name, rows)`` of each kind of rows the run records."""
-        kinds = (("rows", self.rows), ("dense", self.dense), ("events", self.events))
-        return [(kind, rows) for kind, rows in kinds if rows is not None]
 
 
 def solve(
@@ -577,14 +92,15 @@ def solve(
         Constant steps: their number, or a maximal step size (the step used is
         ``h = (t1 - t0) / ceil(|t1 - t0| / dt)``, reported in ``stats["h"]``).
     rtol, atol : float, optional
-        Adaptive steps (default ``1e-8``, ``1e-10``): the local error estimate of q and p is
-        kept below ``atol + rtol·|y|`` in the RMS norm, mapped so that the global error is
-        roughly proportional to rtol (:class:`~lobattodae.PIController`). λ is not error-controlled.
+        Adaptive steps (default ``1e-8``, ``1e-10``): each step's own local error in q and p
+        (estimated by step doubling) is kept below ``atol + rtol·|y|`` per unit of the
+        interval, so that the global error follows rtol (:class:`~lobattodae.PIController`).
+        λ is not error-controlled.
     first_step, max_step : float, optional
-        Adaptive steps: the first step size (default: chosen from the initial slopes) and an
-        upper bound on all of them (default: none).
+        Adaptive steps: the first step size (default, or 0: chosen from the initial slopes)
+        and an upper bound on all of them (default: none).
     max_steps : int, optional
-        Adaptive steps: the cap on step attempts (default :data:`MAX_STEPS` = 10⁷, at most
+        Adaptive steps: the cap on step attempts (default 10⁷, at most
         2·10⁷), checked between compiled chunks of ``chunk_size`` attempts; reaching it ends
         the run with ``Result.MAX_STEPS`` (``success`` False) and the computed prefix. A
         ``max_step`` that would need more steps is refused up front.
@@ -636,7 +152,7 @@ def solve(
         Replace ``p0`` by its least-squares projection onto the constraint
         {p : φ(t0, q0, p) = 0} (always, to round-off) instead of rejecting inconsistent values.
     chunk_size : int, optional
-        Step attempts per compiled chunk (default :data:`~lobattodae._loop.CHUNK`); progress,
+        Step attempts per compiled chunk (default 2048); progress,
         Ctrl-C and checkpoints act between chunks.
     progress : bool or callable
         ``True`` shows a progress bar on stderr once the run has taken more than a second; a
@@ -687,13 +203,13 @@ def solve(
     """
     check_float64()
     _refuse_tracers(t_span=t_span, q0=q0, p0=p0, lam0=lam0, args=args, n_steps=n_steps, dt=dt, rtol=rtol, atol=atol)
-    opt = _Options.check(
+    opt = RunOptions.check(
         method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output, events,
         save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume, t_eval_rows, max_steps,
     )
     # From here on a first Ctrl-C only asks the run to stop at the next chunk boundary (also
     # during validation and compilation), so it never lands inside JAX or between updates.
-    with _deferred_interrupts() as interrupted:
+    with deferred_interrupts() as interrupted:
         return _run(problem, method, opt, q0, p0, lam0, args, throw, project_initial, progress, interrupted)
 
 
@@ -711,74 +227,51 @@ def _refuse_tracers(**inputs) -> None:
             )
 
 
-def _padded_t_eval(opt: _Options):
-    """t_eval padded with NaN to a power of two ≥ 16 (fewer distinct shapes to compile)."""
-    if opt.t_eval is None:
-        return None
-    size = max(16, 1 << (len(opt.t_eval) - 1).bit_length())
-    out = np.full(size, np.nan)
-    out[: len(opt.t_eval)] = opt.t_eval
-    return jnp.asarray(out)
-
-
-def _finished(opt: _Options, state: State) -> bool:
-    """The run is over: a failure or terminal event, or the end reached and every t_eval row written."""
-    if int(state.result) != Result.SUCCESSFUL:
-        return True
-    if not bool(opt.controller.done(state.controller)):
-        return False
-    return opt.t_eval is None or int(state.k_eval) >= len(opt.t_eval)
-
-
-def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_initial, progress, interrupted):
+def _run(problem, method, opt: RunOptions, q0, p0, lam0, args, throw, project_initial, progress, interrupted):
     """Validation, the loop state, the compiled chunks (progress, checkpoints, recovery), the
     Solution; ``interrupted()`` says whether Ctrl-C asked to stop."""
     q0, p0, lam0, phi0 = validate_and_residual(problem, opt.t0, q0, p0, lam0, args, project=project_initial)
     method = for_error_control(method, opt.controller)
     _check_events(opt.output.events, opt.t0, q0, p0, args)
-    report = _progress_reporter(progress, opt)
+    report = progress_reporter(progress, opt)
     controller, output = opt.controller, opt.output
 
     def initial():
         state, packing = init_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0, p0, lam0, args)
-        return _Progress.start(state, opt), packing
+        return Progress.start(state, opt.output), packing
 
     meta = _run_identity(problem, method, args, opt, q0, p0, lam0) if opt.checkpoint else None
     run = packing = None  # a fresh run computes its initial state in its first chunk's compiled call
     if opt.checkpoint and opt.resume and _checkpoint.exists(opt.checkpoint):
         run, packing = initial()
         run = _resume(opt, meta, run.state)
-    t_eval = _padded_t_eval(opt)
+    t_eval = opt.padded_t_eval()
     failed = False
     start = time.perf_counter()
     last_saved = 0 if run is None else int(run.state.n_accepted)
     saved_t = opt.t0 if run is None else float(controller.time(run.state.controller))
     write_error, stopped_early = None, False  # an OSError of a checkpoint save; it stopped the run
     try:
-        while not interrupted() and (run is None or not (_finished(opt, run.state) or _capped(opt, run.state))):
+        while not interrupted() and (run is None or not (opt.finished(run.state) or opt.capped(run.state))):
             if run is None:
                 state, chunk, packing = start_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0,
                                                    p0, lam0, args, opt.chunk, opt.every, t_eval)
-                run = _Progress.start(state, opt)
+                run = Progress.start(state, opt.output)
             else:
                 state, chunk = run_host(problem, method, controller, output, packing, run.state, args, opt.chunk,
                                         opt.every, t_eval)
-            rows, dense, events = _numpy_chunk(run, chunk)
+            run = run.with_chunk(chunk)._replace(state=state)
             if int(state.result) not in (Result.SUCCESSFUL, Result.EVENT):
                 recovered = None
                 if run.recoveries < opt.max_recoveries:
                     recovered = _recover_step(problem, method, args, state)
                 if recovered is None:
-                    run = run._replace(state=state, rows=rows, dense=dense, events=events)
                     failed = True
                     break
                 state, row = recovered
-                run = run._replace(state=state, rows=rows.append(tuple(row)), dense=dense, events=events,
-                                   recoveries=run.recoveries + 1)
-            else:
-                run = run._replace(state=state, rows=rows, dense=dense, events=events)
+                run = run._replace(state=state, rows=run.rows.append(tuple(row)), recoveries=run.recoveries + 1)
             if report is not None:
-                report(*_progress_numbers(opt, run.state))
+                report(*opt.progress_numbers(run.state))
             done = int(run.state.n_accepted)
             if opt.checkpoint and opt.checkpoint_every and done - last_saved >= opt.checkpoint_every:
                 try:
@@ -791,9 +284,9 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
         pass
     if run is None:  # interrupted before the first chunk
         run, _ = initial()
-    if isinstance(report, _ProgressBar):
+    if isinstance(report, ProgressBar):
         report.close()
-    finished = _finished(opt, run.state)
+    finished = opt.finished(run.state)
     if opt.checkpoint and write_error is None and (int(run.state.n_accepted) > last_saved or not finished):
         try:
             run = _save(opt.checkpoint, meta, run)
@@ -801,13 +294,13 @@ def _run(problem, method, opt: _Options, q0, p0, lam0, args, throw, project_init
             write_error = exc
     elapsed = time.perf_counter() - start
     if write_error is None:
-        return _assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failed, finished, throw, elapsed)
-    sol = _assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failed, finished, False, elapsed)
+        return assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failed, finished, throw, elapsed)
+    sol = assemble(problem, method, args, opt, q0, p0, lam0, phi0, run, failed, finished, False, elapsed)
     return _write_failed(opt, sol, write_error, float(controller.time(run.state.controller)),
                          last_saved if run.segments is not None else None, saved_t, stopped_early, throw)
 
 
-def _write_failed(opt: _Options, sol: Solution, exc: Exception, t_now: float, saved_steps: int | None,
+def _write_failed(opt: RunOptions, sol: Solution, exc: Exception, t_now: float, saved_steps: int | None,
                   saved_t: float, stopped_early: bool, throw: bool) -> Solution:
     """The run whose checkpoint could not be written: :class:`~lobattodae.CheckpointWriteError`
     carrying the computed prefix (``throw``), or that prefix with the reason in its message.
@@ -846,17 +339,6 @@ def _write_failed(opt: _Options, sol: Solution, exc: Exception, t_now: float, sa
     return sol
 
 
-def _capped(opt: _Options, state: State) -> bool:
-    """The adaptive run used up its ``max_steps`` step attempts (checked between chunks)."""
-    return opt.adaptive and int(state.n_accepted) + int(state.n_rejected) >= opt.max_steps
-
-
-def _progress_numbers(opt: _Options, state: State):
-    if opt.adaptive:
-        return float(opt.controller.time(state.controller)), opt.t1
-    return int(state.n_accepted), opt.n
-
-
 def _check_events(events, t0, q0, p0, args) -> None:
     """Each event function must return one finite number at the initial point."""
     for i, ev in enumerate(events):
@@ -870,25 +352,6 @@ def _check_events(events, t0, q0, p0, args) -> None:
             )
         if not np.isfinite(value).all():
             raise LobattoDAEInputError(f"event function {ev.name!r} (events[{i}]) is not finite at t0 ({float(value.ravel()[0])}).")
-
-
-def _numpy_chunk(run: _Progress, chunk):
-    """The rows, dense-output data and event zeros of a chunk (NumPy), appended to the run's.
-
-    The used rows are copied out of the chunk's buffers, so that the buffers (up to
-    ``chunk_size`` rows each) are freed: with ``save_every`` a chunk uses few of them."""
-
-    def used(x, k):
-        return np.array(x[:k])
-
-    rows, dense, events = run.rows, run.dense, run.events
-    rows = rows.append(tuple(used(x, int(chunk.n_rows)) for x in chunk.rows))
-    if dense is not None:
-        dense = dense.append((used(chunk.dense, int(chunk.n_dense)),))
-    if events is not None:
-        e = int(chunk.n_events)
-        events = events.append((used(chunk.event_rows, e), used(chunk.event_index, e)))
-    return rows, dense, events
 
 
 def _recover_step(problem, method, args, state: State):
@@ -943,41 +406,37 @@ _init_stepper = jax.jit(
 
 
 # -- checkpoints ----------------------------------------------------------------------------------
-def _run_identity(problem, method, args, opt: _Options, q0, p0, lam0) -> dict:
+def _run_identity(problem, method, args, opt: RunOptions, q0, p0, lam0) -> dict:
     """What a checkpoint must match to be resumed: the problem's functions, the method, args,
     the time grid or tolerances, the output options and the initial values."""
     return {
-        "problem": _checkpoint.fingerprint_callable(problem),
+        "problem": fingerprint_callable(problem),
         "method": repr(method),
-        "args": _checkpoint.fingerprint_arrays(args) if args is not None else None,
-        "t_span": [opt.t0, opt.t1],
-        "steps": [opt.n, opt.h] if not opt.adaptive else [repr(opt.controller)] + [float(x) for x in opt.control[1:]],
-        "output": [
-            opt.output.dense, opt.every,
-            _checkpoint.fingerprint_arrays(opt.t_eval) if opt.t_eval is not None else None,
-            [_checkpoint.fingerprint_callable(ev.fn) + f"/{ev.terminal}/{ev.direction}" for ev in opt.output.events],
-        ],
-        "initial_values": _checkpoint.fingerprint_arrays(np.asarray(q0), np.asarray(p0), np.asarray(lam0)),
+        "args": fingerprint_arrays(args) if args is not None else None,
+        "t_span": opt.span.identity(),
+        "steps": opt.steps.identity(),
+        "output": opt.saving.identity(),
+        "initial_values": fingerprint_arrays(np.asarray(q0), np.asarray(p0), np.asarray(lam0)),
     }
 
 
-def _save(path: str, meta: dict, run: _Progress) -> _Progress:
+def _save(path: str, meta: dict, run: Progress) -> Progress:
     """Commit a checkpoint of ``run``: its state and the rows since the last save (an
-    incremental segment, :mod:`lobattodae._checkpoint`). Returns ``run`` with those rows
+    incremental segment, :mod:`lobattodae._io.checkpoint`). Returns ``run`` with those rows
     marked saved."""
     new = {}
     for kind, rows in run.kinds():
-        new.update(zip(_ROW_FIELDS[kind], rows.unsaved()))
+        new.update(zip(ROW_FIELDS[kind], rows.unsaved()))
     counters = {"done": int(run.state.n_accepted), "rows": run.rows.count, "recoveries": run.recoveries}
     segments = _checkpoint.save(path, meta=meta, counters=counters, state=run.state, rows=new, previous=run.segments)
     marked = {kind: rows._replace(saved=rows.count) for kind, rows in run.kinds()}
     return run._replace(segments=segments, **marked)
 
 
-def _resume(opt: _Options, meta: dict, template: State) -> _Progress:
+def _resume(opt: RunOptions, meta: dict, template: State) -> Progress:
     path = opt.checkpoint
-    empty = _Progress.start(template, opt)
-    names = [name for kind, _ in empty.kinds() for name in _ROW_FIELDS[kind]]
+    empty = Progress.start(template, opt.output)
+    names = [name for kind, _ in empty.kinds() for name in ROW_FIELDS[kind]]
     counters, state, rows, segments = _checkpoint.load(path, meta=meta, state_template=template, row_names=names)
     count = int(counters.get("rows", -1))
     if count < 0 or any(len(rows[f]) != count for f in Record._fields):
@@ -990,209 +449,9 @@ def _resume(opt: _Options, meta: dict, template: State) -> _Progress:
             f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint ({len(rows['event_rows'])} event rows, "
             f"{len(rows['event_index'])} event indices); delete it or restart without resume."
         )
-    run = _Progress.start(state, opt, int(counters.get("recoveries", 0)))._replace(segments=segments)
+    run = Progress.start(state, opt.output, int(counters.get("recoveries", 0)))._replace(segments=segments)
     loaded = {}
     for kind, empty_rows in run.kinds():
-        fields = tuple(rows[name] for name in _ROW_FIELDS[kind])
+        fields = tuple(rows[name] for name in ROW_FIELDS[kind])
         loaded[kind] = empty_rows.append(fields)._replace(saved=len(fields[0]))
     return run._replace(**loaded)
-
-
-# -- interrupts and progress ----------------------------------------------------------------------
-@contextmanager
-def _deferred_interrupts():
-    """Within the block, Ctrl-C (SIGINT) only sets a flag that the chunk loop checks, so an
-    interrupt never lands between updating the step count and the state; a second Ctrl-C
-    raises KeyboardInterrupt as usual. Outside the main thread, or where SIGINT is ignored,
-    nothing is changed."""
-    flag = {"set": False}
-    if threading.current_thread() is not threading.main_thread():
-        yield lambda: False
-        return
-    previous = signal.getsignal(signal.SIGINT)
-    if previous is signal.SIG_IGN:  # e.g. a background job: Ctrl-C stays ignored
-        yield lambda: False
-        return
-
-    def handler(signum, frame):
-        if flag["set"]:
-            raise KeyboardInterrupt
-        flag["set"] = True
-
-    signal.signal(signal.SIGINT, handler)
-    try:
-        yield lambda: flag["set"]
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def _progress_reporter(progress, opt):
-    if progress is False or progress is None:
-        return None
-    if callable(progress):
-        return progress
-    return _ProgressBar(adaptive=opt.adaptive, t0=opt.t0)
-
-
-class _ProgressBar:
-    """A progress bar on stderr that appears once a run has taken more than ``delay`` seconds:
-    steps for constant steps, simulated time for adaptive ones."""
-
-    def __init__(self, delay: float = 1.0, adaptive: bool = False, t0: float = 0.0):
-        self.start = time.perf_counter()
-        self.delay = delay
-        self.shown = False
-        self.adaptive = adaptive
-        self.t0 = t0
-
-    def __call__(self, done: float, total: float) -> None:
-        el = time.perf_counter() - self.start
-        if el < self.delay and not self.shown:
-            return
-        self.shown = True
-        if self.adaptive:
-            frac = (done - self.t0) / (total - self.t0)
-            what = f"t = {done:.6g} of {total:.6g}"
-        else:
-            frac = done / total
-            what = f"{int(done)}/{int(total)} steps"
-        eta = el / frac * (1 - frac) if frac > 0 else float("nan")
-        fill = int(30 * frac)
-        sys.stderr.write(f"\r[{'#' * fill}{'.' * (30 - fill)}] {what}  {el:6.1f}s  eta {eta:6.1f}s")
-        if frac >= 1:
-            self.close()
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        """End the bar's line (also when the run stopped early)."""
-        if self.shown:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
-            self.shown = False
-
-
-# -- the Solution -----------------------------------------------------------------------------------
-def _assemble(problem, method, args, opt: _Options, q0, p0, lam0, phi0, run: _Progress, failed, finished, throw,
-              elapsed):
-    out = Record(*run.rows.all())
-    state = run.state
-    # Non-finite values reported as success would be a bug upstream; never let them through.
-    finite = np.all(np.isfinite(out.q), axis=1) & np.all(np.isfinite(out.p), axis=1) & np.all(np.isfinite(out.lam), axis=1)
-    failed_step, result = None, Result.SUCCESSFUL
-    if not np.all(finite):
-        n_ok = int(np.flatnonzero(~finite)[0])
-        failed_step, result = n_ok, Result.NONFINITE
-        out = Record(*(x[:n_ok] for x in out))
-    elif failed or not Result(int(state.result)).success:  # failed here, or in the run resumed from
-        failed_step, result = int(state.n_accepted), Result(int(state.result))
-    elif not finished and _capped(opt, state):
-        result = Result.MAX_STEPS
-    elif not finished:
-        result = Result.INTERRUPTED
-    elif int(state.result) == Result.EVENT:
-        result = Result.EVENT
-    with_initial = opt.t_eval is None
-    t = np.concatenate([[opt.t0], out.t]) if with_initial else out.t
-
-    def column(x0, rows):
-        return np.vstack([x0[None], rows]) if with_initial else rows
-
-    def scalar(x0, rows):
-        return np.concatenate([[x0], rows]) if with_initial else rows
-
-    excursions = int(state.stepper.monitor.excursions)
-    stats = {
-        "newton_iterations": out.iterations,
-        "residual_norm": out.residual_norm,
-        "constraint_residual": scalar(phi0, out.constraint),
-        "multiplier_drift": scalar(0.0, out.drift),
-        "lam_resync": out.resync,
-        "lam_resets": int(np.count_nonzero(out.resync)),
-        "lam_excursions": excursions,
-        "max_constraint_residual": max(float(state.max_constraint), float(np.max(out.constraint, initial=0.0))),
-        "max_multiplier_drift": float(state.max_drift),
-        "n_jacobians": int(state.n_jacobians),
-        "n_newton": int(state.n_newton),
-        "n_steps": int(state.n_accepted),
-        "n_rejected": int(state.n_rejected),
-        "h": opt.h,
-        "n_clamped": int(state.controller.n_clamped) if isinstance(opt.controller, ReversibleStepSize) else None,
-        "failed_step": failed_step,
-        "recoveries": run.recoveries,
-        "compile_and_run_time": elapsed,
-    }
-    events = _event_lists(opt, run, q0.shape[-1], lam0.shape[-1])
-    sol = None
-    if opt.output.dense:
-        (dense,) = run.dense.all()
-        sol = DenseOutput(method.pair, dense, method.pieces, q0.shape[-1], lam0.shape[-1], opt.t0, problem, args)
-    success = result.success and failed_step is None
-    message = result.message
-    if failed_step is not None:
-        tf, hf = (float(x) for x in opt.controller.proposal(state.controller))
-        tried = f" (after {run.recoveries} recovered steps; max_recoveries={opt.max_recoveries})" if opt.max_recoveries else ""
-        message = f"Step {failed_step} (t = {tf:.6g}, h = {hf:.3g}) failed{tried}: {result.message}"
-        if result == Result.STEP_SIZE_TOO_SMALL:
-            message += _zero_scale_hint(opt, state)
-        if throw:
-            raise NewtonFailure(message, step=failed_step, t=tf, reason=result.name.lower())
-    elif result == Result.MAX_STEPS:
-        t_now = float(opt.controller.time(state.controller))
-        message = (f"The step limit max_steps={opt.max_steps:,} was reached at t = {t_now:.6g}, before the end of the "
-                   "interval; the computed prefix is returned. Raise max_steps, or loosen the tolerances.")
-    elif result == Result.INTERRUPTED:
-        t_now = float(opt.controller.time(state.controller))
-        of = f" of {opt.n}" if opt.n is not None else ""
-        message = f"Interrupted after {int(state.n_accepted)}{of} steps (t = {t_now:.6g}); the computed prefix is returned."
-    if method.lam_start == "previous" and excursions:
-        k = _first_excursion(out.drift)
-        note = (
-            f"the multiplier λ_k left its normal band around the hidden constraint in {excursions} steps "
-            f"(‖λ_k − λ(q_k, p_k)‖∞ up to {float(state.max_drift):.2e}, first at t ≈ {out.t[min(k, len(out.t) - 1)] if len(out.t) else opt.t0:.6g}). "
-            "With lam_start='previous' (the paper's scheme) λ errors are carried with |R(∞)| = 1 and can grow, and with "
-            "them the errors in q and p. Use lam_start='auto' (re-synchronise when λ drifts) or 'consistent', or a "
-            "smaller step."
-        )
-        message = f"{message} Warning: {note}"
-        warnings.warn(note, RuntimeWarning, stacklevel=3)
-    return Solution(
-        t, column(q0, out.q), column(p0, out.p), column(lam0, out.lam),
-        bool(success), result, message, stats, problem, method, args, *events, sol,
-    )
-
-
-def _zero_scale_hint(opt: _Options, state: State) -> str:
-    """The likely cause of a step size that collapsed under ``atol=0``: a component that is 0 at
-    the step point has the error scale ``atol + rtol·|y| = 0``, which no error passes."""
-    if not opt.adaptive or not isinstance(opt.controller, PIController) or float(opt.control.atol) != 0.0:
-        return ""
-    zero = [f"{name}[{i}]" for name, y in (("q", state.q), ("p", state.p)) for i in np.flatnonzero(np.asarray(y) == 0)]
-    if not zero:
-        return ""
-    shown = ", ".join(zero[:4]) + (", ..." if len(zero) > 4 else "")
-    return (f" Cause: atol=0 and {shown} = 0 there, so the error scale atol + rtol·|y| of that component is 0 "
-            "and no step with an error in it passes the test; give a positive atol (an absolute accuracy for "
-            "components that pass through or stay at 0, e.g. atol=1e-12).")
-
-
-def _event_lists(opt: _Options, run: _Progress, n: int, m: int):
-    """``(t_events, q_events, p_events, lam_events)``: one array per event function (or Nones)."""
-    if not opt.output.events:
-        return None, None, None, None
-    rows, index = run.events.all()
-    out = ([], [], [], [])
-    for j in range(len(opt.output.events)):
-        mine = rows[index == j]
-        mine = mine[np.argsort(mine[:, 0] * np.sign(opt.t1 - opt.t0), kind="stable")]
-        for lst, part in zip(out, (mine[:, 0], mine[:, 1 : 1 + n], mine[:, 1 + n : 1 + 2 * n], mine[:, 1 + 2 * n :])):
-            lst.append(part)
-    return out
-
-
-def _first_excursion(drift: np.ndarray) -> int:
-    """Index of the largest growth of the drift over its early level (for the message only)."""
-    if drift.size == 0:
-        return 0
-    early = float(np.max(drift[: min(len(drift), 10)]))
-    above = np.flatnonzero(drift > 10 * early)
-    return int(above[0]) if above.size else int(np.argmax(drift))

@@ -7,7 +7,6 @@ reused Jacobian, the start multiplier Λ₁) and what it hands to the next step.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -19,7 +18,6 @@ from . import _stage_equations as se
 from ._newton import JacobianCache, NewtonOptions, empty_jacobian_cache, implicit_root, newton_solve
 from ._problem import consistent_lambda
 from ._projection import project_step_end
-from ._results import Result
 from ._tableau import LobattoPair, lobatto_pair
 from ._dense import DenseStep, one_piece
 
@@ -67,7 +65,27 @@ class LamMonitor(NamedTuple):
 
 
 class StepperState(NamedTuple):
-    """What a step hands to the next: reused Jacobian, predictor history, λ bookkeeping."""
+    """What a step hands to the next: reused Jacobian, predictor history, λ bookkeeping.
+
+    Made by :meth:`LobattoIIIAIIIB.init` and :meth:`LobattoIIIAIIIB.step`; pass it on
+    unchanged.
+
+    Attributes
+    ----------
+    jacobian : JacobianCache
+        The inverse of the stage Jacobian kept for simplified Newton, and whether it is valid.
+    h_jacobian : jax.Array
+        The step size that Jacobian was evaluated with.
+    history : History
+        The previous step's stage slopes and multipliers, for Newton's starting guess.
+    lam_hidden : jax.Array, shape (m,)
+        λ(t_n, q_n, p_n) from the hidden constraint at the current step point.
+    resync : jax.Array
+        Bool: the next step starts from ``lam_hidden`` (``lam_start="auto"`` after an
+        excursion of the λ drift).
+    monitor : LamMonitor
+        The λ drift monitor of ``lam_start="auto"`` (its epochs and its count of excursions).
+    """
 
     jacobian: JacobianCache
     h_jacobian: jax.Array  # the step size the cached Jacobian was evaluated with
@@ -78,7 +96,30 @@ class StepperState(NamedTuple):
 
 
 class StepInfo(NamedTuple):
-    """Diagnostics of one step (all JAX scalars)."""
+    """Diagnostics of one step (JAX arrays; scalars but ``error`` and ``dense``).
+
+    Attributes
+    ----------
+    result : jax.Array
+        A :class:`~lobattodae.Result` code; anything but 0 means the step failed.
+    iterations : jax.Array
+        Newton iterations of the step.
+    residual_norm : jax.Array
+        The max-norm of the last evaluated residual of the stage equations.
+    n_jacobians : jax.Array
+        Stage Jacobians evaluated (each with one factorisation) in the step; 0 when a kept
+        one was reused throughout.
+    drift : jax.Array
+        ``‖λ_1 − λ(t_1, q_1, p_1)‖∞``: the distance of the step's multiplier from the hidden
+        constraint's.
+    resync : jax.Array
+        Bool: this step started from λ(t_0, q_0, p_0) instead of λ_0 (``lam_start="auto"``).
+    error : jax.Array, shape (2n,)
+        The local error estimate of ``(q_1, p_1)`` (see :meth:`LobattoIIIAIIIB.step`).
+    dense : DenseStep
+        The step's stage slopes and multipliers, from which its continuous extension is
+        evaluated.
+    """
 
     result: jax.Array
     iterations: jax.Array
@@ -186,11 +227,30 @@ class LobattoIIIAIIIB:
         return NewtonOptions(self.tol, self.max_iterations, self.reuse_jacobian)
 
     def order(self) -> dict[str, int]:
-        """Global orders proven for this method: ``{"q": 2s-2, "p": 2s-2, "lam": ...}``."""
+        """Global orders proven for this method (the paper's Corollary).
+
+        Returns
+        -------
+        dict
+            ``{"q": 2s-2, "p": 2s-2, "lam": s}`` for even s, ``"lam": s-1`` for odd s.
+        """
         return self.pair.order()
 
     def n_unknowns(self, n: int, m: int) -> int:
-        """Size of the Newton system, ``(2s-1) n + (s-1) m``."""
+        """Size of the Newton system of one step.
+
+        Parameters
+        ----------
+        n : int
+            Dimension of q (and of p).
+        m : int
+            Dimension of λ.
+
+        Returns
+        -------
+        int
+            ``(2s-1) n + (s-1) m``.
+        """
         return se.Layout(self.stages, n, m).size
 
     @functools.cached_property
@@ -200,7 +260,28 @@ class LobattoIIIAIIIB:
     # -- stepping ---------------------------------------------------------------------------
     def init(self, problem, t0, q0, p0, lam0, args: Any = None, h=None) -> StepperState:
         """The state before the first step from ``(t0, q0, p0, λ0)``: no Jacobian, no history,
-        ``λ(t0, q0, p0)`` from the hidden constraint (one Newton update of λ0)."""
+        ``λ(t0, q0, p0)`` from the hidden constraint (one Newton update of λ0).
+
+        Parameters
+        ----------
+        problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+            The problem.
+        t0 : float
+            Initial time.
+        q0, p0 : array_like, shape (n,)
+            Initial values; their float dtype is the state's.
+        lam0 : array_like, shape (m,)
+            Initial multiplier.
+        args : pytree, optional
+            Passed to the problem functions.
+        h : float, optional
+            The first step's size, recorded with the (still empty) Jacobian cache (default 0).
+
+        Returns
+        -------
+        StepperState
+            To be passed to the first :meth:`step`.
+        """
         q0 = jnp.asarray(q0)
         dtype = q0.dtype
         lam0 = jnp.asarray(lam0, dtype)
@@ -217,7 +298,21 @@ class LobattoIIIAIIIB:
         )
 
     def start_multiplier(self, lam_n, state: StepperState):
-        """Λ₁ of the next step: the one place where the ``lam_start`` policy is applied."""
+        """Λ₁ of the next step: the one place where the ``lam_start`` policy is applied.
+
+        Parameters
+        ----------
+        lam_n : jax.Array, shape (m,)
+            The multiplier λ_n at the step's start point.
+        state : StepperState
+            What the previous step returned (its ``lam_hidden`` and ``resync``).
+
+        Returns
+        -------
+        jax.Array, shape (m,)
+            ``λ_n`` (``"previous"``), ``λ(t_n, q_n, p_n)`` (``"consistent"``), or for ``"auto"``
+            the latter only where ``state.resync`` asks for it.
+        """
         if self.lam_start == "previous":
             return lam_n
         if self.lam_start == "consistent":
@@ -227,22 +322,43 @@ class LobattoIIIAIIIB:
     def step(self, problem, t0, q0, p0, lam0, h, args: Any = None, state: StepperState | None = None):
         """Take one step of size ``h`` from consistent ``(t0, q0, p0, λ0)``.
 
-        Pure and jit/vmap-able; ``h`` may be negative (a step backwards in time). ``state``
-        is what the previous step returned (None for a first step).
+        Pure and jit/vmap-able; ``h`` may be negative (a step backwards in time).
+
+        Parameters
+        ----------
+        problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+            The problem.
+        t0 : float
+            Time at the start of the step.
+        q0, p0 : array_like, shape (n,)
+            Consistent values at ``t0``, ``φ(t0, q0, p0) = 0``.
+        lam0 : array_like, shape (m,)
+            The multiplier at ``t0``.
+        h : float
+            Step size (negative: backwards).
+        args : pytree, optional
+            Passed to the problem functions.
+        state : StepperState, optional
+            What the previous step returned (None for a first step: :meth:`init` makes it).
 
         Returns
         -------
         q1, p1, lam1 : jax.Array
+            The values at ``t0 + h``.
         info : StepInfo
             ``result`` (a :class:`Result` code; anything but 0 means the step failed and
             ``q1, p1, lam1`` are not a solution), ``iterations``, ``residual_norm``,
             ``n_jacobians``, ``drift`` (‖λ_1 − λ(t_1, q_1, p_1)‖∞), ``resync``, ``error``
             (the local error estimate below) and ``dense`` (the continuous extension).
+        state : StepperState
+            To be passed to the next step (Jacobian reuse, predictor, λ bookkeeping).
 
-        With a ``position_constraint`` ψ, ``(q1, p1)`` is the projected end point
-        (:func:`~lobattodae._projection.project_step_end`; λ1 is the step's own), computed
-        before λ(t_1, q_1, p_1) and differentiated with the step; the error estimate and the
-        dense output are those of the unprojected step.
+        Notes
+        -----
+        With a ``position_constraint`` ψ, ``(q1, p1)`` is the end point projected onto
+        ψ = 0 and φ = 0 (λ1 is the step's own), computed before λ(t_1, q_1, p_1) and
+        differentiated with the step; the error estimate and the dense output are those of
+        the unprojected step.
 
         The error estimate is the difference between the step and the embedded formula
         ``q̂_1 = q_0 + h Σ_j b̂_j V_j``, ``p̂_1 = p_0 + h Σ_j b̂_j W_j`` with weights
@@ -258,9 +374,7 @@ class LobattoIIIAIIIB:
         anything: the scheme's undamped λ error (``Λ_1 = λ_n``) answers in the stage
         multipliers with a pattern that is not smooth in the stage index and enters ``e·W`` at
         ``O(h)``, whatever the solution does; error-controlled runs therefore start every step
-        from ``λ(t_n, q_n, p_n)`` (see :func:`for_error_control`).
-        state : StepperState
-            To be passed to the next step (Jacobian reuse, predictor, λ bookkeeping).
+        from ``λ(t_n, q_n, p_n)``.
         """
         t0, q0, p0, lam0, h = as_step_arrays(t0, q0, p0, lam0, h)
         if state is None:

@@ -293,6 +293,11 @@ def lobatto_iiib(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (s, s)
         The matrix ``A_hat``.
+
+    Raises
+    ------
+    ValueError
+        If ``b`` has fewer than 2 entries, or ``a`` is not of shape (s, s).
     """
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
@@ -336,6 +341,11 @@ class LobattoPair:
         Lobatto IIIA matrix ``A = (a_ij)``.
     a_hat : ndarray, shape (s, s)
         Lobatto IIIB matrix ``A_hat = (a_hat_ij)``.
+    error_weights : ndarray, shape (s,)
+        ``e = b - b̂`` of the embedded quadrature of the local error estimate (computed on
+        first use).
+    r_infinity : int
+        ``R(∞) = (-1)^(s-1)`` of IIIA, the factor by which a λ error is carried per step.
     """
 
     s: int
@@ -364,8 +374,13 @@ class LobattoPair:
         return hash(("LobattoPair", self.s))
 
     def order(self) -> dict[str, int]:
-        """Global orders for index-2 partitioned DAEs (the paper's Corollary):
-        ``{"q": 2s-2, "p": 2s-2, "lam": s}`` for even s and ``"lam": s-1`` for odd s."""
+        """Global orders for index-2 partitioned DAEs (the paper's Corollary).
+
+        Returns
+        -------
+        dict
+            ``{"q": 2s-2, "p": 2s-2, "lam": s}`` for even s and ``"lam": s-1`` for odd s.
+        """
         s = self.s
         return {"q": 2 * s - 2, "p": 2 * s - 2, "lam": s if s % 2 == 0 else s - 1}
 
@@ -388,7 +403,13 @@ class LobattoPair:
         return out
 
     def error_order(self) -> int:
-        """The power of h in the local error estimate ``h Σ_j e_j (V_j, W_j)``: s."""
+        """The power of h in the local error estimate ``h Σ_j e_j (V_j, W_j)``.
+
+        Returns
+        -------
+        int
+            s.
+        """
         return self.s
 
     @property

@@ -171,6 +171,12 @@ def whipple_bicycle() -> LagrangianModel:
     rR, mR, IRxx, IRyy, xB, zB, mB, IBxx, IBxz, IByy, IBzz, xH, zH, mH, IHxx, IHxz, IHyy, IHzz,
     rF, mF, IFxx, IFyy``) with the benchmark values as defaults (:data:`BENCHMARK`).
     Built once per process (cached).
+
+    Returns
+    -------
+    LagrangianModel
+        The model (8 coordinates, 5 multipliers); ``model.problem`` for
+        :func:`lobattodae.solve`, ``model.args()`` the benchmark parameters.
     """
     x, y, yaw, roll, pitch, steer, thr, thf = dynamicsymbols(" ".join(COORDINATES))
     coords = [x, y, yaw, roll, pitch, steer, thr, thf]
@@ -357,6 +363,20 @@ def upright_state(model: LagrangianModel, v: float, args: dict | None = None, *,
     ``ψ̇_F = 0`` (:meth:`LagrangianModel.complete_velocities`), and ``p0 = M q̇0``. With the
     defaults: upright steady rolling, a relative equilibrium.
 
+    Parameters
+    ----------
+    model : LagrangianModel
+        The model of :func:`whipple_bicycle`.
+    v : float
+        Forward speed (m/s): the rear wheel turns at ``θ̇_R = −v/rR``.
+    args : dict, optional
+        Its parameters (:meth:`LagrangianModel.args`; default ``model.args()``: the benchmark
+        bicycle).
+    roll, steer : float, optional
+        Roll ``φ`` and steer ``δ`` angles (rad; default 0).
+    roll_rate, steer_rate : float, optional
+        Their rates (rad/s; default 0): e.g. a roll-rate kick.
+
     Returns
     -------
     q0, p0 : numpy.ndarray, shape (8,)
@@ -446,6 +466,23 @@ def state_matrix(model: LagrangianModel, v: float, args: dict | None = None, *, 
 
     (MPRS eq. 5.1), or with ``full=True`` the 10×10 matrix in the chart (the lateral block
     is decoupled from the other chart variables, which :func:`linearize` checks).
+
+    Parameters
+    ----------
+    model : LagrangianModel
+        The model of :func:`whipple_bicycle`.
+    v : float
+        Forward speed (m/s).
+    args : dict, optional
+        Its parameters (:meth:`LagrangianModel.args`; default ``model.args()``: the benchmark
+        bicycle).
+    full : bool, optional
+        Return the 10×10 matrix in the chart :data:`CHART` instead of the lateral 4×4 block.
+
+    Returns
+    -------
+    numpy.ndarray, shape (4, 4) or (10, 10)
+        ``A(v)``: ``x' = A(v) x`` for ``x = (φ, δ, φ̇, δ̇)`` (or the chart variables).
     """
     args = model.args() if args is None else args
     J = _chart_matrices(_linear_data(model, v, args))[0]
@@ -462,7 +499,22 @@ def _reduced_mass(model, args):
 
 
 class BenchmarkMatrices(NamedTuple):
-    """``M, C1, K0, K2`` of MPRS eq. (5.1), 2×2 arrays for ``(φ, δ)``."""
+    """``M, C1, K0, K2`` of MPRS eq. (5.1), 2×2 arrays for ``(φ, δ)``.
+
+    ``M q̈ + v C1 q̇ + (g K0 + v² K2) q = f`` for ``q = (φ, δ)`` and the roll and steer
+    torques ``f = (T_φ, T_δ)``.
+
+    Attributes
+    ----------
+    M : numpy.ndarray, shape (2, 2)
+        The mass matrix.
+    C1 : numpy.ndarray, shape (2, 2)
+        The velocity-dependent damping-like matrix (multiplied by ``v``).
+    K0 : numpy.ndarray, shape (2, 2)
+        The gravity-dependent stiffness matrix (multiplied by ``g``).
+    K2 : numpy.ndarray, shape (2, 2)
+        The velocity-dependent stiffness matrix (multiplied by ``v²``).
+    """
 
     M: np.ndarray
     C1: np.ndarray
@@ -483,6 +535,25 @@ def linearize(model: LagrangianModel, args: dict | None = None) -> BenchmarkMatr
     ``K0 = −M A₂₁(0)/g``, ``K2 = −M (A₂₁(1) − A₂₁(0))``, ``C1 = −M A₂₂(1)``. Only the model's
     structure (quadratic dependence on ``v``) is used; :func:`linearize` checks it by
     comparing with ``A(v)`` at a third speed, and that the lateral block is decoupled.
+
+    Parameters
+    ----------
+    model : LagrangianModel
+        The model of :func:`whipple_bicycle`.
+    args : dict, optional
+        Its parameters (:meth:`LagrangianModel.args`; default ``model.args()``: the benchmark
+        bicycle).
+
+    Returns
+    -------
+    BenchmarkMatrices
+        ``M, C1, K0, K2`` (2×2 each).
+
+    Raises
+    ------
+    RuntimeError
+        If the linearisation does not have the benchmark structure (quadratic in ``v``, the
+        lateral block decoupled): a model other than the Whipple bicycle.
     """
     args = model.args() if args is None else args
     Mred = _reduced_mass(model, args)
@@ -510,8 +581,24 @@ def linearize(model: LagrangianModel, args: dict | None = None) -> BenchmarkMatr
 
 
 def eigenvalues(model: LagrangianModel, v: float, args: dict | None = None) -> np.ndarray:
-    r"""The four eigenvalues of the lateral state matrix :func:`state_matrix` at speed ``v``,
-    sorted by real part (MPRS Table 2 and Fig. 3: weave pair, capsize, castor)."""
+    r"""The four eigenvalues of the lateral state matrix :func:`state_matrix` at speed ``v``
+    (MPRS Table 2 and Fig. 3: weave pair, capsize, castor).
+
+    Parameters
+    ----------
+    model : LagrangianModel
+        The model of :func:`whipple_bicycle`.
+    v : float
+        Forward speed (m/s).
+    args : dict, optional
+        Its parameters (:meth:`LagrangianModel.args`; default ``model.args()``: the benchmark
+        bicycle).
+
+    Returns
+    -------
+    numpy.ndarray, shape (4,), complex
+        Sorted by real part, then imaginary part.
+    """
     ev = np.linalg.eigvals(state_matrix(model, v, args))
     return ev[np.lexsort((ev.imag, ev.real))]
 
@@ -536,6 +623,29 @@ def weave_capsize_speeds(model: LagrangianModel, args: dict | None = None, *, we
     the speeds where the real part of the weave pair, and the capsize eigenvalue, cross zero;
     ``v_w < v < v_c`` is the self-stable range. Brent's method (:func:`scipy.optimize.brentq`,
     ``xtol``) on the eigenvalues of :func:`state_matrix` inside the given brackets.
+
+    Parameters
+    ----------
+    model : LagrangianModel
+        The model of :func:`whipple_bicycle`.
+    args : dict, optional
+        Its parameters (:meth:`LagrangianModel.args`; default ``model.args()``: the benchmark
+        bicycle).
+    weave_bracket, capsize_bracket : tuple of float, optional
+        Speeds (m/s) between which the weave pair's real part, and the capsize eigenvalue,
+        change sign (defaults (3, 5) and (5, 8): the benchmark bicycle's).
+    xtol : float, optional
+        Absolute tolerance of the speeds (m/s).
+
+    Returns
+    -------
+    v_w, v_c : float
+        The weave and capsize speeds (m/s).
+
+    Raises
+    ------
+    ValueError
+        From :func:`scipy.optimize.brentq`, if a bracket does not contain a sign change.
     """
     from scipy.optimize import brentq
 

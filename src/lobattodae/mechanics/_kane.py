@@ -42,6 +42,22 @@ def from_kanes_method(method, *, name: str | None = None, defaults: Mapping | No
     ``forcelist``/``loads`` (generalized forces). The multipliers are lobattodae's: one per
     kept constraint, ``p' = ∂L/∂q + F + μᵀλ`` (Kane's method has none to compare with).
 
+    Parameters
+    ----------
+    method : sympy.physics.mechanics.KanesMethod
+        The system (its equations need not have been formed).
+    name : str, optional
+        For messages (default ``"LagrangianModel"``).
+    defaults : dict, optional
+        Default parameter values for :meth:`~lobattodae.mechanics.LagrangianModel.args`.
+    simplify : bool, optional
+        As in :func:`~lobattodae.mechanics.from_lagrangian`.
+
+    Returns
+    -------
+    LagrangianModel
+        The model; ``model.problem`` is the problem to pass to :func:`~lobattodae.solve`.
+
     Raises
     ------
     LobattoDAEInputError
@@ -84,7 +100,30 @@ def from_system(system, *, name: str | None = None, defaults: Mapping | None = N
     ``apply_uniform_gravity`` and actuators added as loads), ``holonomic_constraints`` and
     ``nonholonomic_constraints`` (the latter are independent of the derivatives of the former
     by construction of a ``System``). Joints contribute through the bodies, coordinates,
-    speeds and kinematic equations they add. Errors as in :func:`from_kanes_method`.
+    speeds and kinematic equations they add.
+
+    Parameters
+    ----------
+    system : sympy.physics.mechanics.System
+        The system (its equations need not have been formed).
+    name : str, optional
+        For messages (default ``"LagrangianModel"``).
+    defaults : dict, optional
+        Default parameter values for :meth:`~lobattodae.mechanics.LagrangianModel.args`.
+    simplify : bool, optional
+        As in :func:`~lobattodae.mechanics.from_lagrangian`.
+
+    Returns
+    -------
+    LagrangianModel
+        The model; ``model.problem`` is the problem to pass to :func:`~lobattodae.solve`.
+
+    Raises
+    ------
+    LobattoDAEInputError
+        For anything that is not a ``System``, a ``System`` with auxiliary speeds, and the
+        cases of :func:`from_kanes_method` (no bodies, kinematic equations that do not
+        determine the speeds, no constraint at all).
     """
     from sympy.physics.mechanics import System
 

@@ -58,12 +58,28 @@ HOLONOMIC_TOL = 1e-10
 class LagrangianDAE(PartitionedDAE):
     """The :class:`~lobattodae.PartitionedDAE` of a :class:`LagrangianModel`.
 
-    ``f``, ``g``, ``phi`` as in :class:`~lobattodae.PartitionedDAE`; ``f_and_g`` evaluates
-    both with one linear solve (used by the integrator), ``hamiltonian(t, q, p, args)`` is
-    the energy ``pᵀq̇ − L`` and ``mass_matrix(t, q, args)`` the matrix ``M`` (checked to be
-    symmetric positive definite when a solve starts). ``position_constraint(t, q, args)`` is
-    ``ψ`` of the holonomic constraints (None without them): the integrator keeps ``ψ = 0`` to
-    round-off by projecting every step's end point. Hashed by identity, like every problem.
+    Built by :func:`from_lagrangian` (as ``model.problem``), not by hand; pass it to
+    :func:`lobattodae.solve` with ``args=model.args(...)``. Hashed by identity, like every
+    problem.
+
+    Attributes
+    ----------
+    f, g, phi : callable
+        ``f(t, q, p, args)``, ``g(t, q, p, lam, args)``, ``phi(t, q, p, args)``, as in
+        :class:`~lobattodae.PartitionedDAE`.
+    f_and_g : callable
+        ``(f, g)`` with one linear solve (used by the integrator).
+    hamiltonian : callable
+        ``hamiltonian(t, q, p, args)``: the energy ``pᵀq̇ − L``.
+    mass_matrix : callable
+        ``mass_matrix(t, q, args)``: ``M`` (checked to be symmetric positive definite when a
+        solve starts).
+    position_constraint : callable or None
+        ``position_constraint(t, q, args)``: ``ψ`` of the holonomic constraints (None
+        without them); the integrator keeps ``ψ = 0`` to round-off by projecting every
+        step's end point.
+    name : str
+        The model's name.
     """
 
     f_and_g: Callable[..., Any] | None = None
@@ -77,6 +93,25 @@ class SymbolicParts(NamedTuple):
     ``lagrangian = ½ q̇ᵀ mass_matrix q̇ + gyroscopic·q̇ − potential``; the constraints are
     ``constraint_matrix q̇ + constraint_offset = 0`` (nonholonomic first, then the
     differentiated holonomic ones); ``holonomic`` are the position-level ``ψ(t, q)``.
+
+    Attributes
+    ----------
+    lagrangian : sympy.Expr
+        ``L(t, q, q̇)`` as given.
+    mass_matrix : sympy.Matrix
+        ``M(t, q) = ∂²L/∂q̇²`` (n×n).
+    gyroscopic : sympy.Matrix
+        ``a(t, q)``, the part of ``L`` linear in ``q̇`` (n×1).
+    potential : sympy.Expr
+        ``V(t, q)``.
+    constraint_matrix : sympy.Matrix
+        ``μ(t, q)`` (m×n).
+    constraint_offset : sympy.Matrix
+        ``ν(t, q)`` (m×1): nonzero for affine or time-dependent constraints.
+    forces : sympy.Matrix
+        The generalized forces ``F(t, q, q̇)`` (n×1).
+    holonomic : sympy.Matrix
+        ``ψ(t, q)`` (k×1; empty without holonomic constraints).
     """
 
     lagrangian: sp.Expr
@@ -371,9 +406,26 @@ class LagrangianModel:
     def args(self, values: Mapping | None = None, /, **kwargs) -> dict:
         """The ``args`` pytree: a dict ``name -> float64 scalar`` with one entry per parameter.
 
-        Values come from ``values`` (a mapping keyed by name or Symbol), then keywords, then
-        the model's defaults. A missing or unknown name raises
-        :class:`~lobattodae.LobattoDAEInputError` naming it.
+        Values come from ``values``, then keywords, then the model's defaults.
+
+        Parameters
+        ----------
+        values : mapping, optional
+            Parameter values keyed by name (str) or by SymPy Symbol.
+        **kwargs
+            Parameter values by name.
+
+        Returns
+        -------
+        dict
+            ``{name: jax float64 scalar}``, one entry for each of :attr:`parameters`: the
+            ``args`` of :func:`lobattodae.solve` and of this model's methods.
+
+        Raises
+        ------
+        LobattoDAEInputError
+            For a missing or unknown parameter (naming it, with the closest known name), a
+            name given twice, or a value that is not a finite real scalar.
         """
         given: dict[str, Any] = {}
         if values is not None:
@@ -478,49 +530,167 @@ class LagrangianModel:
         return jax.tree_util.tree_map(np.asarray, out)
 
     def mass_matrix(self, t, q, args) -> np.ndarray:
-        """``M(t, q)`` (n×n), or (N, n, n) along a trajectory."""
+        """``M(t, q) = ∂²L/∂q̇²``.
+
+        Parameters
+        ----------
+        t : float or array_like, shape (N,)
+            Time (one per state along a trajectory; a scalar is broadcast).
+        q : array_like, shape (n,) or (N, n)
+            One position, or one per row along a trajectory (e.g. ``sol.q``).
+        args : dict
+            From :meth:`args`.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n, n) or (N, n, n)
+        """
         return self._eval("mass_matrix", t, (q,), (("q", self.n),), args)
 
     def constraint_terms(self, t, q, args) -> tuple[np.ndarray, np.ndarray]:
-        """``(μ(t, q), ν(t, q))``: the constraints read ``μ q̇ + ν = 0``."""
+        """``(μ(t, q), ν(t, q))``: the constraints read ``μ q̇ + ν = 0``.
+
+        Parameters
+        ----------
+        t, q, args
+            As in :meth:`mass_matrix`: one state or a trajectory.
+
+        Returns
+        -------
+        mu : numpy.ndarray, shape (m, n) or (N, m, n)
+        nu : numpy.ndarray, shape (m,) or (N, m)
+        """
         return self._eval("constraint_terms", t, (q,), (("q", self.n),), args)
 
     def momenta(self, t, q, qdot, args, *, check: bool = True) -> np.ndarray:
         """The Legendre transform ``p = ∂L/∂q̇ = M(t, q) q̇ + a(t, q)``.
 
-        With ``check`` (default) ``M(t, q)`` of a single state is checked to be symmetric
-        positive definite. ``q̇`` should satisfy the constraints (see
-        :meth:`complete_velocities`).
+        Parameters
+        ----------
+        t, q, args
+            As in :meth:`mass_matrix`: one state or a trajectory.
+        qdot : array_like, shape (n,) or (N, n)
+            The velocities; they should satisfy the constraints (see
+            :meth:`complete_velocities`).
+        check : bool, optional
+            Check that ``M(t, q)`` of a single state is symmetric positive definite (default
+            True).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,) or (N, n)
+            ``p``: with ``q`` the initial state of :func:`lobattodae.solve`.
+
+        Raises
+        ------
+        LobattoDAEInputError
+            With ``check``, if ``M(t, q)`` is not finite or not positive definite (naming the
+            velocities involved).
         """
         if check and np.ndim(q) == 1:
             self._check_mass(self.mass_matrix(t, q, args), t, q)
         return self._eval("momenta", t, (q, qdot), (("q", self.n), ("qdot", self.n)), args)
 
     def velocities(self, t, q, p, args) -> np.ndarray:
-        """``q̇ = M(t, q)⁻¹ (p − a(t, q))`` (the problem's ``f``)."""
+        """``q̇ = M(t, q)⁻¹ (p − a(t, q))`` (the problem's ``f``).
+
+        Parameters
+        ----------
+        t, q, args
+            As in :meth:`mass_matrix`: one state or a trajectory.
+        p : array_like, shape (n,) or (N, n)
+            The momenta (e.g. ``sol.p``).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,) or (N, n)
+        """
         return self._eval("f", t, (q, p), (("q", self.n), ("p", self.n)), args)
 
     def energy(self, t, q, p, args) -> np.ndarray:
         """The Hamiltonian ``H = pᵀq̇ − L = ½ q̇ᵀM q̇ + V`` (conserved by conservative
-        systems with time-independent linear constraints)."""
+        systems with time-independent linear constraints).
+
+        Parameters
+        ----------
+        t, q, args
+            As in :meth:`mass_matrix`: one state or a trajectory.
+        p : array_like, shape (n,) or (N, n)
+            The momenta.
+
+        Returns
+        -------
+        numpy.ndarray, shape () or (N,)
+        """
         return self._eval("hamiltonian", t, (q, p), (("q", self.n), ("p", self.n)), args)
 
     def lagrangian(self, t, q, qdot, args) -> np.ndarray:
-        """``L(t, q, q̇)``."""
+        """``L(t, q, q̇)``.
+
+        Parameters
+        ----------
+        t, q, args
+            As in :meth:`mass_matrix`: one state or a trajectory.
+        qdot : array_like, shape (n,) or (N, n)
+            The velocities.
+
+        Returns
+        -------
+        numpy.ndarray, shape () or (N,)
+        """
         return self._eval("lagrangian", t, (q, qdot), (("q", self.n), ("qdot", self.n)), args)
 
     def generalized_forces(self, t, q, qdot, args) -> np.ndarray:
-        """``F(t, q, q̇)``."""
+        """``F(t, q, q̇)``: the generalized forces given to :func:`from_lagrangian`.
+
+        Parameters
+        ----------
+        t, q, args
+            As in :meth:`mass_matrix`: one state or a trajectory.
+        qdot : array_like, shape (n,) or (N, n)
+            The velocities.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,) or (N, n)
+            Zero where the model has no forces.
+        """
         return self._eval("forces", t, (q, qdot), (("q", self.n), ("qdot", self.n)), args)
 
     def constraint_forces(self, t, q, p, lam, args) -> np.ndarray:
-        """The generalized constraint forces ``μ(t, q)ᵀ λ`` (``p`` is accepted for symmetry
-        with the problem's functions and not used)."""
+        """The generalized constraint forces ``μ(t, q)ᵀ λ``.
+
+        Parameters
+        ----------
+        t, q, args
+            As in :meth:`mass_matrix`: one state or a trajectory.
+        p : array_like
+            Accepted for symmetry with the problem's functions; not used.
+        lam : array_like, shape (m,) or (N, m)
+            The multipliers (e.g. ``sol.lam``).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,) or (N, n)
+        """
         del p
         return self._eval("constraint_forces", t, (q, lam), (("q", self.n), ("lam", self.m)), args)
 
     def constraint_residual(self, t, q, p, args) -> np.ndarray:
-        """``φ(t, q, p) = μ q̇ + ν`` (zero to round-off along a lobattodae solution)."""
+        """``φ(t, q, p) = μ q̇ + ν`` (zero to round-off along a lobattodae solution).
+
+        Parameters
+        ----------
+        t, q, args
+            As in :meth:`mass_matrix`: one state or a trajectory.
+        p : array_like, shape (n,) or (N, n)
+            The momenta.
+
+        Returns
+        -------
+        numpy.ndarray, shape (m,) or (N, m)
+            One entry per constraint, in the order of :attr:`constraint_labels`.
+        """
         return self._eval("phi", t, (q, p), (("q", self.n), ("p", self.n)), args)
 
     def holonomic_residual(self, t, q, args) -> np.ndarray:
@@ -529,6 +699,16 @@ class LagrangianModel:
         The integrator keeps ``ψ_q q̇ + ψ_t = 0`` (a row of φ) and, by projecting every step's
         end point, ψ itself to round-off at the step points; between them (dense output) ψ is
         the interpolation error.
+
+        Parameters
+        ----------
+        t, q, args
+            As in :meth:`mass_matrix`: one state or a trajectory.
+
+        Returns
+        -------
+        numpy.ndarray, shape (k,) or (N, k)
+            Empty (k = 0) for a model without holonomic constraints.
         """
         return self._eval("holonomic", t, (q,), (("q", self.n),), args)
 
@@ -600,6 +780,15 @@ class LagrangianModel:
         the constraints independent there (``μ M⁻¹ μᵀ`` nonsingular) and the holonomic
         constraints satisfied (``|ψ(t, q)| ≤ HOLONOMIC_TOL (1 + ‖q‖∞)``).
 
+        Parameters
+        ----------
+        t : float
+            Time.
+        q : array_like, shape (n,)
+            One position.
+        args : dict
+            From :meth:`args`.
+
         Returns
         -------
         dict
@@ -636,16 +825,25 @@ class LagrangianModel:
 
         Parameters
         ----------
-        t, q : the state's time and position.
+        t : float
+            The state's time.
+        q : array_like, shape (n,)
+            The state's position.
         qdot : array (n,) or mapping
             An array is a guess for all velocities; it is projected onto the constraint set in
             the kinetic-energy metric (the velocities ``fixed`` kept). A mapping
             ``{coordinate: velocity}`` (keys ``x(t)``, ``'x'`` or an index) fixes those
             velocities and solves for the others (the solution of least kinetic energy
             ``½ q̇ᵀM q̇`` among them, when they are not determined).
-        args : dict from :meth:`args`.
+        args : dict
+            From :meth:`args`.
         fixed : iterable, optional
             Coordinates whose velocity in the array ``qdot`` is kept.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,)
+            ``q̇`` with ``μ q̇ + ν = 0``; pass it to :meth:`momenta`.
 
         Raises
         ------
@@ -955,11 +1153,28 @@ def from_lagranges_method(method, *, name: str | None = None, defaults: Mapping 
     Note the sign: SymPy writes ``d/dt ∂L/∂q̇ − ∂L/∂q − F = −(∂c/∂q̇)ᵀλ_sympy``;
     lobattodae's ``λ`` is ``−λ_sympy``.
 
+    Parameters
+    ----------
+    method : sympy.physics.mechanics.LagrangesMethod
+        The system (its equations need not have been formed).
+    name : str, optional
+        For messages (default ``"LagrangianModel"``).
+    defaults : dict, optional
+        Default parameter values for :meth:`LagrangianModel.args`.
+    simplify : bool, optional
+        As in :func:`from_lagrangian`.
+
+    Returns
+    -------
+    LagrangianModel
+        The model; ``model.problem`` is the problem to pass to :func:`~lobattodae.solve`.
+
     Raises
     ------
     LobattoDAEInputError
         For anything that is not a ``LagrangesMethod`` (a ``KanesMethod`` is pointed to
-        :func:`~lobattodae.mechanics.from_kanes_method`).
+        :func:`~lobattodae.mechanics.from_kanes_method`), a ``forcelist`` without an inertial
+        frame, and everything :func:`from_lagrangian` refuses.
     """
     from sympy.physics.mechanics import KanesMethod, LagrangesMethod
     from sympy.physics.vector import dynamicsymbols

@@ -86,8 +86,23 @@ def quaternion_matrices(Q):
 
     ``R`` (3×3) maps body to space; ``ω_body = 2 E Q̇``, ``ω_space = 2 G Q̇`` (see the module
     docstring). All three are homogeneous in ``Q`` (``R`` quadratic, ``E``, ``G`` linear); for
-    ``|Q| = 1`` ``R`` is a rotation. With SymPy entries they are ``sympy.Matrix``; otherwise
-    NumPy arrays (for a single quaternion).
+    ``|Q| = 1`` ``R`` is a rotation.
+
+    Parameters
+    ----------
+    Q : sequence of 4 entries
+        ``(q0, q1, q2, q3)``, scalar part first: SymPy expressions (e.g. the coordinates of
+        :func:`quaternion_body`) or numbers (a single quaternion).
+
+    Returns
+    -------
+    R : sympy.Matrix or numpy.ndarray, shape (3, 3)
+        The rotation body → space (for a unit ``Q``).
+    E, G : sympy.Matrix or numpy.ndarray, shape (3, 4)
+        ``ω_body = 2 E Q̇`` and ``ω_space = 2 G Q̇``.
+
+        All three are ``sympy.Matrix`` when an entry of ``Q`` is a SymPy expression, NumPy
+        arrays otherwise.
     """
     q0, q1, q2, q3 = Q
     R = [
@@ -149,19 +164,60 @@ class QuaternionBody(NamedTuple):
     norm_constraint: sp.Expr
 
     def to_space(self, vector_body) -> sp.Matrix:
-        """``R(Q) x``: a body-frame vector (3 entries) in space coordinates."""
+        """``R(Q) x``: a body-frame vector in space coordinates.
+
+        Parameters
+        ----------
+        vector_body : sequence of 3 entries or sympy.Matrix
+            The vector's components in the body frame (SymPy expressions or numbers).
+
+        Returns
+        -------
+        sympy.Matrix
+            Its components in the space frame (3×1).
+        """
         return self.rotation * sp.Matrix(vector_body)
 
     def to_body(self, vector_space) -> sp.Matrix:
         """``R(Q)ᵀ x``: a space-frame vector in body coordinates (the inverse of
-        :meth:`to_space` for a unit ``Q``)."""
+        :meth:`to_space` for a unit ``Q``).
+
+        Parameters
+        ----------
+        vector_space : sequence of 3 entries or sympy.Matrix
+            The vector's components in the space frame.
+
+        Returns
+        -------
+        sympy.Matrix
+            Its components in the body frame (3×1).
+        """
         return self.rotation.T * sp.Matrix(vector_space)
 
     def torque_forces(self, torque, frame: str = "space") -> list:
-        r"""The generalized forces on ``Q̇`` of a torque ``τ`` (3 entries, possibly depending
-        on ``t``, ``Q``, ``Q̇``, i.e. a feedback or damping torque):
-        ``F_Q = (∂ω/∂Q̇)ᵀ τ = 2 Gᵀ τ`` (``frame="space"``) or ``2 Eᵀ τ`` (``"body"``), so that
-        the power is ``F_Q·Q̇ = ω·τ``. Returns a dict ``{Q_i: F_i}`` for ``forces=``.
+        r"""The generalized forces on ``Q̇`` of a torque ``τ``.
+
+        ``F_Q = (∂ω/∂Q̇)ᵀ τ = 2 Gᵀ τ`` (``frame="space"``) or ``2 Eᵀ τ`` (``"body"``), so
+        that the power is ``F_Q·Q̇ = ω·τ``.
+
+        Parameters
+        ----------
+        torque : sequence of 3 entries or sympy.Matrix
+            ``τ``, SymPy expressions that may depend on ``t``, ``Q`` and ``Q̇`` (a feedback or
+            damping torque) and on parameter symbols.
+        frame : {"space", "body"}, optional
+            The frame of ``torque``'s components (default ``"space"``).
+
+        Returns
+        -------
+        dict
+            ``{Q_i: F_i}``, the coordinates of the body to their generalized forces: pass it
+            (merged with any other forces) as ``forces=`` to :func:`from_lagrangian`.
+
+        Raises
+        ------
+        LobattoDAEInputError
+            If ``frame`` is neither ``"space"`` nor ``"body"``.
         """
         tau = sp.Matrix(torque)
         if frame == "space":
@@ -219,6 +275,14 @@ def quaternion_body(name: str = "Q", inertia=None, t=None, *, regularization=Non
     Returns
     -------
     QuaternionBody
+        The coordinates, the kinematics (``R``, ``ω``, ``γ``), the regularised kinetic energy
+        and the norm constraint, as SymPy objects.
+
+    Raises
+    ------
+    LobattoDAEInputError
+        If ``inertia`` is neither 3 moments nor a 3×3 matrix, is not symmetric, or
+        ``regularization`` is a number that is not positive.
 
     Notes
     -----
@@ -281,7 +345,19 @@ def quaternion_body(name: str = "Q", inertia=None, t=None, *, regularization=Non
 
 # ----------------------------------------------------------------------------- numerics
 def rotation_matrix(Q) -> np.ndarray:
-    """``R(Q)`` (body → space) for quaternions ``Q`` of shape (4,) or (N, 4): (3, 3) or (N, 3, 3)."""
+    """``R(Q)`` (body → space) of one quaternion or of a stack of them.
+
+    Parameters
+    ----------
+    Q : array_like, shape (4,) or (N, 4)
+        Quaternions, scalar part first (unit quaternions for a rotation; ``R`` is quadratic
+        in ``Q``).
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3) or (N, 3, 3)
+        ``x_space = R x_body``.
+    """
     Q = np.asarray(Q, dtype=float)
     q0, q1, q2, q3 = np.moveaxis(Q, -1, 0)
     R = np.stack([
@@ -303,17 +379,55 @@ def _E(Q):
 
 def quaternion_rates(Q, omega_body) -> np.ndarray:
     """``Q̇ = ½ E(Q)ᵀ ω_body`` (= ``½ Q ⊗ (0, ω)``): the quaternion rates of a body angular
-    velocity; ``Q·Q̇ = 0``. Shapes (4,), (3,) or stacked (N, 4), (N, 3)."""
+    velocity.
+
+    Parameters
+    ----------
+    Q : array_like, shape (4,) or (N, 4)
+        Unit quaternions, scalar part first.
+    omega_body : array_like, shape (3,) or (N, 3)
+        The angular velocity in the body frame.
+
+    Returns
+    -------
+    numpy.ndarray, shape (4,) or (N, 4)
+        ``Q̇``, with ``Q·Q̇ = 0`` (the velocity form of ``|Q| = 1``).
+    """
     return 0.5 * np.einsum("...ki,...k->...i", _E(Q), np.asarray(omega_body, dtype=float))
 
 
 def body_angular_velocity(Q, Qdot) -> np.ndarray:
-    """``ω_body = 2 E(Q) Q̇`` (shapes (4,) or (N, 4) → (3,) or (N, 3))."""
+    """``ω_body = 2 E(Q) Q̇``: the body angular velocity of quaternion rates (the inverse of
+    :func:`quaternion_rates` on ``Q·Q̇ = 0``).
+
+    Parameters
+    ----------
+    Q : array_like, shape (4,) or (N, 4)
+        Quaternions, scalar part first.
+    Qdot : array_like, shape (4,) or (N, 4)
+        Their rates (e.g. the last four of ``model.velocities(t, q, p, args)``).
+
+    Returns
+    -------
+    numpy.ndarray, shape (3,) or (N, 3)
+        ``ω`` in the body frame; ``R(Q) ω`` is the space frame's.
+    """
     return 2.0 * np.einsum("...ki,...i->...k", _E(Q), np.asarray(Qdot, dtype=float))
 
 
 def quaternion_multiply(a, b) -> np.ndarray:
-    """The Hamilton product ``a ⊗ b`` (scalar first); ``R(a ⊗ b) = R(a) R(b)``."""
+    """The Hamilton product ``a ⊗ b`` (scalar first); ``R(a ⊗ b) = R(a) R(b)``.
+
+    Parameters
+    ----------
+    a, b : array_like, shape (4,) or (N, 4)
+        Quaternions, scalar part first (stacks are multiplied row by row).
+
+    Returns
+    -------
+    numpy.ndarray, shape (4,) or (N, 4)
+        ``a ⊗ b``: the rotation ``b`` followed by ``a`` (for unit quaternions).
+    """
     a0, a1, a2, a3 = np.moveaxis(np.asarray(a, dtype=float), -1, 0)
     b0, b1, b2, b3 = np.moveaxis(np.asarray(b, dtype=float), -1, 0)
     return np.stack([
@@ -325,7 +439,20 @@ def quaternion_multiply(a, b) -> np.ndarray:
 
 
 def quaternion_from_axis_angle(axis, angle) -> np.ndarray:
-    """The unit quaternion of the rotation by ``angle`` about the unit vector ``axis``."""
+    """The unit quaternion of the rotation by ``angle`` about ``axis``.
+
+    Parameters
+    ----------
+    axis : array_like, shape (3,)
+        The rotation axis (normalised here; must not be zero).
+    angle : float
+        The angle (rad), positive counter-clockwise about ``axis``.
+
+    Returns
+    -------
+    numpy.ndarray, shape (4,)
+        ``(cos(angle/2), sin(angle/2) axis/|axis|)``.
+    """
     axis = np.asarray(axis, dtype=float)
     axis = axis / np.linalg.norm(axis)
     return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])

@@ -60,6 +60,11 @@ def chaplygin_sleigh() -> LagrangianModel:
     ``q = (x, y, θ)`` (centre of mass, heading), ``L = ½ m (ẋ² + ẏ²) + ½ I θ̇²``, knife edge
     at distance ``a`` behind the centre of mass: ``−sin θ ẋ + cos θ ẏ − a θ̇ = 0``.
     Parameters ``m, I, a`` (defaults 1).
+
+    Returns
+    -------
+    LagrangianModel
+        The model (3 coordinates, 1 multiplier), built once per process.
     """
     x, y, th = dynamicsymbols("x y theta")
     m, inertia, a = sp.symbols("m I a")
@@ -75,6 +80,11 @@ def knife_edge() -> LagrangianModel:
 
     ``q = (x, y, θ)``, ``L = ½ m (ẋ² + ẏ²) + ½ J θ̇² − m g y``, ``−sin θ ẋ + cos θ ẏ = 0``.
     Parameters ``m, J, g`` (defaults 1).
+
+    Returns
+    -------
+    LagrangianModel
+        The model (3 coordinates, 1 multiplier), built once per process.
     """
     x, y, th = dynamicsymbols("x y theta")
     m, J, g = sp.symbols("m J g")
@@ -100,6 +110,11 @@ def falling_disk() -> LagrangianModel:
     the material point of the disk at ``P`` has zero horizontal velocity,
     ``ẋ − R cos φ ψ̇ = 0``, ``ẏ − R sin φ ψ̇ = 0``. Parameters ``m, R, g, I1, I3`` (defaults
     1, 1, 1, 1/4, 1/2: a uniform thin disk, as the example).
+
+    Returns
+    -------
+    LagrangianModel
+        The model (5 coordinates, 2 multipliers), built once per process.
     """
     from sympy.physics.mechanics import Point, ReferenceFrame
 
@@ -147,6 +162,11 @@ def turntable_ball() -> LagrangianModel:
     (affine and explicitly time-dependent). The centre moves on a circle, relative to the
     table's centre, at the angular frequency ``2Ω/7`` (:func:`turntable_ball_centre`).
     Parameters ``m, r, Omega, Vx, Vy`` (defaults 1, 1, 1, 0, 0).
+
+    Returns
+    -------
+    LagrangianModel
+        The model (5 coordinates, 2 multipliers), built once per process.
     """
     x, y, al, be, ga = dynamicsymbols("x y alpha beta gamma")
     m, r, Om, Vx, Vy = sp.symbols("m r Omega Vx Vy")
@@ -170,11 +190,28 @@ def turntable_ball_centre(t, x0, y0, vx0, vy0, Omega, Vx=0.0, Vy=0.0):
     With ``w = ẋ − V`` the centre's velocity relative to the table's translation, rolling
     and the Newton–Euler equations (``m ẍ = F``, ``I ω̇ = −r ẑ × F``) give
     ``(1 + m r²/I) ẇ = Ω ẑ × w``, i.e. ``ẇ = ω_c ẑ × w`` with ``ω_c = Ω I/(I + m r²) = 2Ω/7``:
-    ``w`` turns at the rate ``ω_c``, and ``x(t) = x0 + V t − ẑ × (w(t) − w(0))/ω_c``.
+    ``w`` turns at the rate ``ω_c``, and ``x(t) = x0 + V t − ẑ × (w(t) − w(0))/ω_c``. The
+    centre moves on a circle of radius ``|w(0)|/ω_c`` about ``x0 + ẑ × w(0)/ω_c``, which moves
+    with the table at ``V``; neither depends on ``m`` or ``r``.
+
+    Parameters
+    ----------
+    t : float or array_like
+        Times.
+    x0, y0 : float
+        The centre at ``t = 0``.
+    vx0, vy0 : float
+        The centre's velocity at ``t = 0``.
+    Omega : float
+        The table's rate of turn (rad per unit time).
+    Vx, Vy : float, optional
+        The table centre's constant velocity (default 0: the table turns in place about the
+        origin).
 
     Returns
     -------
-    (x, y, vx, vy) : arrays shaped like ``t``
+    x, y, vx, vy : numpy.ndarray
+        The centre and its velocity, each shaped like ``t``.
     """
     t = np.asarray(t, dtype=np.float64)
     wc = 2.0 * Omega / 7.0
@@ -203,11 +240,22 @@ def differential_drive(torques: tuple | None = None) -> LagrangianModel:
     Constraints: no sideways slip ``−sin θ ẋ + cos θ ẏ = 0``, rolling
     ``cos θ ẋ + sin θ ẏ ± b θ̇ − ρ φ̇_{r,l} = 0``. Forces on the wheels: motor torques minus
     viscous damping, ``F_{φ_r} = τ_r(t) − c φ̇_r``, ``F_{φ_l} = τ_l(t) − c φ̇_l``, with (default)
-    ``τ_r = B + A sin(w t)``, ``τ_l = B − A sin(w t)``; other inputs: ``torques=(τ_r, τ_l)``,
-    SymPy expressions in ``t = dynamicsymbols._t`` and parameter symbols.
+    ``τ_r = B + A sin(w t)``, ``τ_l = B − A sin(w t)``.
 
-    Parameters ``m, I, d, b, rho, Jw, c, A, B, w`` (defaults 1, 0.5, 0.3, 0.4, 0.2, 0.01,
-    0.05, 0.2, 0.1, 2).
+    Model parameters ``m, I, d, b, rho, Jw, c, A, B, w`` (defaults 1, 0.5, 0.3, 0.4, 0.2,
+    0.01, 0.05, 0.2, 0.1, 2; ``A, B, w`` only with the default torques).
+
+    Parameters
+    ----------
+    torques : tuple of 2 sympy.Expr, optional
+        ``(τ_r, τ_l)``: other motor torques, SymPy expressions in
+        ``t = dynamicsymbols._t``, the coordinates and parameter symbols (new symbols become
+        parameters without defaults). Default: the sinusoidal torques above.
+
+    Returns
+    -------
+    LagrangianModel
+        The model (5 coordinates, 3 multipliers), built once per process and ``torques``.
     """
     x, y, th, pr, pl = dynamicsymbols("x y theta phi_r phi_l")
     m, inertia, dd, b, rho, Jw, c, A, B, w = sp.symbols("m I d b rho Jw c A B w")
@@ -241,6 +289,11 @@ def cartesian_pendulum() -> LagrangianModel:
     end point, ``ψ`` itself to round-off (see ``holonomic_residual``). With
     ``x = ℓ sin θ``, ``y = −ℓ cos θ``: ``θ̈ = −(g/ℓ) sin θ``. Parameters ``m, g, l``
     (defaults 1, 9.81, 1).
+
+    Returns
+    -------
+    LagrangianModel
+        The model (2 coordinates, 1 multiplier: the rod), built once per process.
     """
     x, y = dynamicsymbols("x y")
     m, g, ell = sp.symbols("m g l")
@@ -260,6 +313,11 @@ def cartesian_double_pendulum() -> LagrangianModel:
     ``y1 = −ℓ1 cos θ1``, ``x2 = x1 + ℓ2 sin θ2``, ``y2 = y1 − ℓ2 cos θ2`` it is the classical
     double pendulum in the angles (a chaotic system for large energies). Parameters
     ``m1, m2, g, l1, l2`` (defaults 1, 1, 9.81, 1, 1).
+
+    Returns
+    -------
+    LagrangianModel
+        The model (4 coordinates, 2 multipliers: the rods), built once per process.
     """
     x1, y1, x2, y2 = dynamicsymbols("x1 y1 x2 y2")
     m1, m2, g, l1, l2 = sp.symbols("m1 m2 g l1 l2")

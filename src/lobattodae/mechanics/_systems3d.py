@@ -60,6 +60,11 @@ def suslov() -> LagrangianModel:
 
     Parameters ``I11, I22, I33, I12, I13, I23, a1, a2, a3``
     (defaults 2, 3, 4, 0, 0.3, 0.2, 0, 0, 1).
+
+    Returns
+    -------
+    LagrangianModel
+        The model (4 coordinates; 2 multipliers: the constraint and ``|Q| = 1``), built once per process.
     """
     names = "I11 I22 I33 I12 I13 I23"
     I11, I22, I33, I12, I13, I23 = sp.symbols(names)
@@ -78,7 +83,26 @@ def suslov() -> LagrangianModel:
 def suslov_state(model, args, Q0, omega0):
     r"""``(q0, p0)`` for :func:`suslov` from an orientation ``Q0`` (normalised here) and a body
     angular velocity ``omega0``, whose component along ``a`` is removed (in the metric of
-    ``I``: ``ω ← ω − I⁻¹a (aᵀω)/(aᵀI⁻¹a)``, the velocity the constraint impulse leaves)."""
+    ``I``: ``ω ← ω − I⁻¹a (aᵀω)/(aᵀI⁻¹a)``, the velocity the constraint impulse leaves).
+
+    Parameters
+    ----------
+    model : LagrangianModel
+        The model of :func:`suslov`.
+    args : dict
+        Its parameters (``model.args(...)``).
+    Q0 : array_like, shape (4,)
+        The orientation, a quaternion (scalar first; normalised here).
+    omega0 : array_like, shape (3,)
+        The body angular velocity (its component along ``a`` is removed).
+
+    Returns
+    -------
+    q0 : numpy.ndarray, shape (4,)
+        The unit quaternion.
+    p0 : numpy.ndarray, shape (4,)
+        The momenta of the consistent velocities (``model.momenta``).
+    """
     Q0 = _unit(Q0)
     I = suslov_inertia(args)
     a = np.array([float(args[k]) for k in ("a1", "a2", "a3")])
@@ -90,7 +114,18 @@ def suslov_state(model, args, Q0, omega0):
 
 
 def suslov_inertia(args) -> np.ndarray:
-    """The inertia tensor of :func:`suslov` from its ``args``."""
+    """The inertia tensor of :func:`suslov` from its ``args``.
+
+    Parameters
+    ----------
+    args : dict
+        The model's parameters (``model.args(...)``).
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
+        ``[[I11, I12, I13], [I12, I22, I23], [I13, I23, I33]]`` (body frame).
+    """
     g = {k: float(args[k]) for k in ("I11", "I22", "I33", "I12", "I13", "I23")}
     return np.array([[g["I11"], g["I12"], g["I13"]], [g["I12"], g["I22"], g["I23"]], [g["I13"], g["I23"], g["I33"]]])
 
@@ -118,6 +153,11 @@ def chaplygin_sphere() -> LagrangianModel:
     has a moment about the contact point), while the horizontal part of ``R K`` stays.
 
     Parameters ``m, r, I1, I2, I3, c`` (defaults 1, 1, 0.3, 0.4, 0.5, 0).
+
+    Returns
+    -------
+    LagrangianModel
+        The model (6 coordinates; 3 multipliers: rolling and ``|Q| = 1``), built once per process.
     """
     x, y = dynamicsymbols("x y")
     m, r, I1, I2, I3, c = sp.symbols("m r I1 I2 I3 c")
@@ -135,7 +175,28 @@ def chaplygin_sphere() -> LagrangianModel:
 def chaplygin_sphere_state(model, args, Q0, omega0_body, xy0=(0.0, 0.0)):
     r"""``(q0, p0)`` for :func:`chaplygin_sphere` from an orientation ``Q0`` (normalised), the
     body angular velocity ``omega0_body`` and the centre ``xy0``; the centre's velocity follows
-    from rolling, ``v = −ω × (−r e_z)``."""
+    from rolling, ``v = −ω × (−r e_z)``.
+
+    Parameters
+    ----------
+    model : LagrangianModel
+        The model of :func:`chaplygin_sphere`.
+    args : dict
+        Its parameters (``model.args(...)``).
+    Q0 : array_like, shape (4,)
+        The orientation, a quaternion (scalar first; normalised here).
+    omega0_body : array_like, shape (3,)
+        The angular velocity in the body frame.
+    xy0 : array_like, shape (2,), optional
+        The centre's horizontal position (default the origin).
+
+    Returns
+    -------
+    q0 : numpy.ndarray, shape (6,)
+        ``(x, y, Q0, Q1, Q2, Q3)``.
+    p0 : numpy.ndarray, shape (6,)
+        The momenta of the consistent velocities (``model.momenta``).
+    """
     Q0 = _unit(Q0)
     w_b = np.asarray(omega0_body, dtype=float)
     w_s = rotation_matrix(Q0) @ w_b
@@ -191,6 +252,11 @@ def rattleback() -> LagrangianModel:
 
     Parameters ``a, b, c, h, m, g, A, B, C, D``, defaults
     :data:`RATTLEBACK_KANE_LEVINSON` (Kane & Levinson 1982).
+
+    Returns
+    -------
+    LagrangianModel
+        The model (6 coordinates; 3 multipliers: rolling and ``|Q| = 1``), built once per process.
     """
     x, y = dynamicsymbols("x y")
     a, b, c, h, m, g, A, B, C, D = sp.symbols("a b c h m g A B C D")
@@ -208,9 +274,25 @@ def rattleback() -> LagrangianModel:
 
 
 def rattleback_contact(gamma, args):
-    r"""``(r_P, z_G, dr_P/dγ)`` of :func:`rattleback` for body-frame verticals ``gamma``
-    (shape (3,) or (N, 3)): the contact point from the centre of mass (body frame), the
-    height of the centre of mass and the Jacobian of ``r_P`` with respect to ``γ``."""
+    r"""The contact geometry of :func:`rattleback` for body-frame verticals ``γ``.
+
+    Parameters
+    ----------
+    gamma : array_like, shape (3,) or (N, 3)
+        ``γ = Rᵀ e_z``, the upward unit vector in body coordinates (the third row of the
+        rotation matrix).
+    args : dict
+        The model's parameters (``a, b, c, h`` are used).
+
+    Returns
+    -------
+    r_P : numpy.ndarray, shape (3,) or (N, 3)
+        The contact point from the centre of mass, in the body frame.
+    z_G : numpy.ndarray, shape () or (N,)
+        The height of the centre of mass above the plane.
+    dr_P : numpy.ndarray, shape (3, 3) or (N, 3, 3)
+        The Jacobian ``∂r_P/∂γ``.
+    """
     gamma = np.asarray(gamma, dtype=float)
     Dg = np.array([float(args["a"]) ** 2, float(args["b"]) ** 2, float(args["c"]) ** 2])
     h = float(args["h"])
@@ -225,7 +307,29 @@ def rattleback_contact(gamma, args):
 def rattleback_state(model, args, Q0, omega0_body, xy0=(0.0, 0.0)):
     r"""``(q0, p0)`` for :func:`rattleback` from an orientation ``Q0`` (normalised), the body
     angular velocity and ``G``'s horizontal position; ``G``'s velocity from rolling,
-    ``v_G = −ω × R r_P``."""
+    ``v_G = −ω × R r_P``.
+
+    Parameters
+    ----------
+    model : LagrangianModel
+        The model of :func:`rattleback`.
+    args : dict
+        Its parameters (``model.args(...)``).
+    Q0 : array_like, shape (4,)
+        The orientation, a quaternion (scalar first; normalised here).
+    omega0_body : array_like, shape (3,)
+        The angular velocity in the body frame (for a spin ``s`` about the vertical:
+        ``rotation_matrix(Q0).T @ (0, 0, s)``).
+    xy0 : array_like, shape (2,), optional
+        ``G``'s horizontal position (default the origin).
+
+    Returns
+    -------
+    q0 : numpy.ndarray, shape (6,)
+        ``(x, y, Q0, Q1, Q2, Q3)``.
+    p0 : numpy.ndarray, shape (6,)
+        The momenta of the consistent velocities (``model.momenta``).
+    """
     Q0 = _unit(Q0)
     R = rotation_matrix(Q0)
     w_b = np.asarray(omega0_body, dtype=float)

@@ -1,4 +1,4 @@
-"""The loop state packed into two vectors (lobattodae._packing) comes back unchanged."""
+"""The host-side chunk driver (lobattodae._chunks): the loop state packed into two vectors comes back unchanged."""
 
 import jax
 import jax.numpy as jnp
@@ -7,8 +7,8 @@ import pytest
 
 import lobattodae as L
 from lobattodae._controllers import ControlOptions, PIController
-from lobattodae._loop import Output, init_host
-from lobattodae._packing import StatePacking
+from lobattodae._chunks import StatePacking, init_host
+from lobattodae._loop import Output
 from lobattodae.examples import get_example
 
 from helpers import assert_bitwise_equal
