@@ -12,7 +12,7 @@ from ._errors import LobattoDAEInputError
 from ._solve import solve
 from ._stepper import LobattoIIIAIIIB
 
-__all__ = ["ConvergenceStudy", "convergence_study", "observed_order", "order_text", "default_step_counts"]
+__all__ = ["N_FIT", "ConvergenceStudy", "convergence_study", "default_step_counts", "fit_window", "observed_order", "order_text"]
 
 COMPONENTS = ("q", "p", "lam")
 #: Errors below PLATEAU_REL[c] * (1 + max |c|) are treated as round-off and not fitted. The
@@ -21,11 +21,37 @@ COMPONENTS = ("q", "p", "lam")
 PLATEAU_REL = {"q": 1e-13, "p": 1e-13, "lam": 1e-11}
 
 
-def observed_order(h: Sequence[float], err: Sequence[float], floor: float = 0.0, n_fit: int = 4) -> float:
+#: How many of the smallest step sizes above the round-off floor an order fit uses.
+N_FIT = 4
+
+
+def fit_window(h: Sequence[float], err: Sequence[float], floor: float = 0.0, n_fit: int = N_FIT) -> np.ndarray:
+    """The indices of the points :func:`observed_order` fits: of the points with a finite
+    ``err > floor`` (above the round-off plateau), the ``n_fit`` smallest step sizes (the
+    asymptotic regime; coarse steps can be pre-asymptotic), in increasing h.
+
+    Parameters
+    ----------
+    h, err, floor, n_fit
+        As for :func:`observed_order`.
+
+    Returns
+    -------
+    numpy.ndarray of int
+        Indices into ``h`` and ``err`` (fewer than ``n_fit`` where fewer points lie above the floor).
+    """
+    h = np.asarray(h, float)
+    err = np.asarray(err, float)
+    keep = np.flatnonzero(np.isfinite(err) & (err > floor) & (err > 0))
+    return keep[np.argsort(h[keep], kind="stable")][:n_fit]
+
+
+def observed_order(h: Sequence[float], err: Sequence[float], floor: float = 0.0, n_fit: int = N_FIT) -> float:
     """Observed order: least-squares slope of ``log err`` against ``log h``.
 
     Only points with ``err > floor`` (above the round-off plateau) are used, and of those the
-    ``n_fit`` smallest step sizes (the asymptotic regime; coarse steps can be pre-asymptotic).
+    ``n_fit`` smallest step sizes (the asymptotic regime; coarse steps can be pre-asymptotic):
+    :func:`fit_window`.
 
     Parameters
     ----------
@@ -36,7 +62,7 @@ def observed_order(h: Sequence[float], err: Sequence[float], floor: float = 0.0,
     floor : float, optional
         Errors at or below it count as round-off and are left out (default 0).
     n_fit : int, optional
-        How many of the smallest remaining step sizes the fit uses (default 4).
+        How many of the smallest remaining step sizes the fit uses (default :data:`N_FIT`).
 
     Returns
     -------
@@ -44,13 +70,10 @@ def observed_order(h: Sequence[float], err: Sequence[float], floor: float = 0.0,
         The fitted slope; NaN when fewer than two points lie above the floor (the component
         is exact, or at round-off for every step size).
     """
-    h = np.asarray(h, float)
-    err = np.asarray(err, float)
-    keep = np.flatnonzero(np.isfinite(err) & (err > floor) & (err > 0))
+    keep = fit_window(h, err, floor, n_fit)
     if keep.size < 2:
         return float("nan")
-    keep = keep[np.argsort(h[keep])][:n_fit]
-    slope, _ = np.polyfit(np.log(h[keep]), np.log(err[keep]), 1)
+    slope, _ = np.polyfit(np.log(np.asarray(h, float)[keep]), np.log(np.asarray(err, float)[keep]), 1)
     return float(slope)
 
 
