@@ -5,22 +5,20 @@ Problems, T = 1000 (``--quick``: T = 100):
 * ``sleigh`` -- the Chaplygin sleigh (``get_example("sleigh")``); reference: its closed
   form (x, y from the example's Gauss-Legendre quadrature, accurate to round-off).
 * ``falling-disk-general`` -- the falling rolling disk in general nutating motion; no closed
-  form. Reference: the index-reduced ODE (``_common.falling_disk_ode``'s SymPy expressions,
-  evaluated with NumPy in 80-bit extended precision, ``np.longdouble``, eps = 1.1e-19)
-  integrated with the 5-stage Gauss-Legendre method (order 10, coefficients from mpmath at
-  40 digits), constant steps h = 0.05, fixed-point stage iteration to round-off and
-  compensated summation; the same integration with h = 0.1 bounds its error (``ref_diff``).
-  Computed once and cached in ``results/adaptive_wp_reference.json``. Float64 solvers
-  cannot get much closer than ~1e-9 on this problem at T = 1000: round-off is amplified
-  ~1e7 (two float64 runs that differ only in rounding differ by ~1e-9 at T = 1000, by
-  ~7e-12 at T = 100), so every curve has a floor there.
+  form. Reference: ``lib.references.falling_disk`` (the reduced ODE in 80-bit extended
+  precision, Gauss-Legendre s = 5, h = 0.05, compensated summation; the same with h = 0.1
+  bounds its error, ``ref_diff``), computed once and cached in
+  ``results/adaptive_wp_reference.json``. Float64 solvers cannot get much closer than ~1e-9
+  on this problem at T = 1000: round-off is amplified ~1e7 (two float64 runs that differ only
+  in rounding differ by ~1e-9 at T = 1000, by ~7e-12 at T = 100), so every curve has a floor
+  there.
 
 Solvers (every point: best of up to 3 calls after a warm-up call of the same solver; a
 call longer than ``REPEAT_LIMIT_S`` = 5 s is not repeated; a solver stops tightening once
 one call takes longer than ``--budget`` seconds (default 20) or its next call is predicted
 to take > 3x that, once its error stops falling below 1e-6 (best error not improved 2x over
 three settings: the round-off floor; a plateau above 1e-6 is saturation at loose tolerances,
-not a floor) or drops below 2e-13):
+not a floor) or drops below 2e-13; ``lib.sweeps.Sweep``):
 
 * **lobattodae adaptive**, s = 3, 4, 5, 6 (``LobattoIIIAIIIB(stages=s)``): ``solve`` with
   rtol = atol = tol, ``save_every="final"``, ``lam0`` given, ``throw=False``; the wall time
@@ -33,19 +31,18 @@ not a floor) or drops below 2e-13):
 * **lobattodae reversible control**, s = 5, falling disk only (it has the reversing symmetry
   ``(q, p) -> (q, -p)``): ``ReversibleStepSize()`` (density ‖(f, g)‖, Hairer & Söderlind)
   with the symmetric scheme, ``first_step`` = 0.5·2^(-k/2) (it fixes ε = h₀ σ(y₀)).
-* **scipy DOP853** (``solve_ivp``, rtol = atol = tol, 1e-3 ... 2.3e-14 = scipy's floor) on
-  the index-reduced ODE with a plain Python/NumPy right-hand side (by hand for the sleigh,
-  SymPy-generated for the disk), validated against the library's JAX vector field;
-  every step is kept (the default), and max ‖φ‖ is evaluated on them.
+* **scipy DOP853** (rtol = atol = tol, 1e-3 ... 2.3e-14 = scipy's floor) on the index-reduced
+  ODE with a plain Python/NumPy right-hand side (``lib.odes``: by hand for the sleigh,
+  SymPy-generated for the disk), validated against the problem's own vector field; every
+  step is kept (the default), and max ‖φ‖ is evaluated on them.
 * **diffrax Dopri8** on the same ODE in ``jax.numpy``, ``PIDController(rtol = atol = tol)``,
-  jit-compiled once (``_common.DiffraxDopri8``), for each of ``engine.PID_SETS`` (diffrax's
-  documented coefficient sets), tol = 1e-3 ... 1e-15; the set with the smallest time at
-  error 1e-8 is plotted (the others are in the JSON). ‖φ‖ over every step is recomputed
-  (untimed) for its point closest to 1e-8.
-* **SUNDIALS IDA** (scikit-sundae) on the index-2 DAE, ``y = (q, p, λ)``, λ excluded from
-  the error test (``baselines.IDABaseline``), with the residual and exact Jacobian in plain
-  Python/NumPy (``baselines.IDANumpy``, ``_common.numpy_dae``; validated against the
-  library's residual), tol = 1e-3 ... 1e-12.
+  jit-compiled once (``lib.baselines.Diffrax``), for each of ``lib.baselines.PID_SETS``
+  (diffrax's documented coefficient sets), tol = 1e-3 ... 1e-15; the set with the smallest
+  time at error 1e-8 is plotted (the others are in the JSON). ‖φ‖ over every step is
+  recomputed (untimed) for its point closest to 1e-8.
+* **SUNDIALS IDA** on the index-2 DAE, ``y = (q, p, λ)``, λ excluded from the error test
+  (``lib.baselines.IDA``), with the residual and exact Jacobian in plain Python/NumPy
+  (``lib.odes.numpy_dae``; validated against the problem's residual), tol = 1e-3 ... 1e-12.
 
 Error: max over the components of |q(T) - q_ref| (max-norm, absolute; |q| reaches ~1.4e3
 on the sleigh, ~1.0e3 on the disk, whose heading angle grows). Time at error 1e-8: on each
@@ -67,31 +64,22 @@ Writes ``benchmarks/results/adaptive_wp[_quick].json`` (``--problems`` merges in
 
 from __future__ import annotations
 
-import argparse
-import datetime
-import json
 import math
-import os
 import sys
 import time
-import warnings
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-try:
-    import lobattodae as L  # noqa: N812
-except ImportError:  # pragma: no cover
-    sys.path.insert(0, os.path.join(HERE, "..", "src"))
-    import lobattodae as L  # noqa: N812
-from lobattodae.examples import get_example  # noqa: E402
+import lobattodae as L
+from lib import cli, references
+from lib.baselines import IDA, PID_SETS, Diffrax, ida_available, scipy_solve
+from lib.odes import numpy_dae, reduced_ode, validate_dae, validate_ode
+from lib.output import loadavg, log, md_table, merged, pyplot, read_json, results_path, run_meta, save_figure, \
+    write_json
+from lib.sweeps import Sweep, half_decades, solution_point, time_at
+from lib.timing import best_of
+from lobattodae.examples import get_example
 
-import _common as C  # noqa: E402
-from baselines import IDANumpy, ida_available, time_best  # noqa: E402
-from engine import PID_SETS  # noqa: E402
-
-RESULTS_DIR = os.path.join(HERE, "results")
 PROBLEMS = ("sleigh", "falling-disk-general")
 #: Problems with a reversing symmetry (q, p) -> (q, -p), on which reversible step-size control applies.
 REVERSIBLE = ("falling-disk-general",)
@@ -103,12 +91,8 @@ LOW_ERR = 2e-13
 #: falling disk (T = 1000) the phase is lost and the error saturates at O(1..100) for several
 #: settings before it starts to fall (s = 4, 5 adaptive, Dopri8), so the sweep goes on there.
 FLOOR_ABOVE = 1e-6
-log = C.log
-
-
-def half_decades(hi: float, lo: float) -> list[float]:
-    k0, k1 = round(-2 * math.log10(hi)), round(-2 * math.log10(lo))
-    return [float(f"{10 ** (-k / 2):.3g}") for k in range(k0, k1 + 1)]
+#: This file's names of a sweep point's measurements (the sweep's ``error``, ``time``, ``cpu_time``).
+NAMES = {"error": "err", "time": "wall_s", "cpu_time": "cpu_s"}
 
 
 def config(quick: bool) -> dict:
@@ -125,283 +109,72 @@ def config(quick: bool) -> dict:
             "rev_stages": [5], "rev_h0": [round(0.5 * 2 ** (-k / 2), 4) for k in range(0, 9)]}
 
 
-# ------------------------------------------------------------------------- reference
-def _gauss_legendre(s: int, dps: int = 40):
-    """Gauss-Legendre coefficients (A, b) in np.longdouble, computed with mpmath."""
-    import mpmath as mp
-
-    mp.mp.dps = dps
-    x0 = np.polynomial.legendre.leggauss(s)[0]
-    c = [(1 + mp.findroot(lambda z: mp.legendre(s, z), mp.mpf(float(x)))) / 2 for x in x0]
-
-    def ell(j):
-        return lambda t: mp.fprod([(t - c[k]) / (c[j] - c[k]) for k in range(s) if k != j])
-
-    ld = lambda v: np.longdouble(mp.nstr(v, 30))  # noqa: E731  (strtold: full extended precision)
-    A = np.array([[ld(mp.quad(ell(j), [0, c[i]])) for j in range(s)] for i in range(s)])
-    b = np.array([ld(mp.quad(ell(j), [0, 1])) for j in range(s)])
-    return A, b
-
-
-def _disk_extended(ex, T: float, h: float) -> tuple[np.ndarray, dict]:
-    """q(T) of the falling disk from Gauss-Legendre s = 5 in np.longdouble (see the module
-    docstring); returns (q as float64 hi + lo parts stacked, info)."""
-    import sympy as sp
-
-    q, p, prm, exprs, _ = C._falling_disk_sympy()
-    f = sp.lambdify([q, p, prm], exprs, "numpy", cse=True)
-    params = tuple(np.longdouble(float(getattr(ex.args, k))) for k in ("m", "R", "g", "I1", "I3"))
-
-    def F(Y):
-        out = f([Y[:, i] for i in range(5)], [Y[:, 5 + i] for i in range(5)], params)
-        return np.stack([np.broadcast_to(np.asarray(o, dtype=np.longdouble), (Y.shape[0],)) for o in out], axis=1)
-
-    A, b = _gauss_legendre(5)
-    y = np.r_[ex.q0, ex.p0].astype(np.longdouble)
-    comp = np.zeros_like(y)
-    N = int(round(T / h))
-    hh = np.longdouble(T) / N
-    eps = np.finfo(np.longdouble).eps
-    K = np.tile(F(y[None])[0], (5, 1))
-    its, t0 = 0, time.perf_counter()
-    for _ in range(N):
-        prev = np.inf
-        for _ in range(60):
-            Kn = F(y[None] + hh * (A @ K))
-            d = float(np.max(np.abs(Kn - K)))
-            K = Kn
-            its += 1
-            if d <= 4 * eps * float(np.max(np.abs(K))) or d >= prev:
-                break
-            prev = d
-        inc = hh * (b @ K) - comp  # compensated (Kahan) summation of the increments
-        y_new = y + inc
-        comp = (y_new - y) - inc
-        y = y_new
-    hi = y[:5].astype(np.float64)
-    lo = (y[:5] - hi.astype(np.longdouble)).astype(np.float64)
-    return np.stack([hi, lo]), {"h": float(hh), "steps": N, "stage_iterations_per_step": its / N,
-                                "seconds": time.perf_counter() - t0}
-
-
 def reference(name: str, ex, T: float, cfg: dict) -> dict:
     if name == "sleigh":
         return {"q_ref": ex.exact(np.array([T]))[0][0], "how": "closed form (x, y by the example's quadrature)"}
-    path = os.path.join(RESULTS_DIR, "adaptive_wp_reference.json")
-    cache = {}
-    if os.path.exists(path):
-        with open(path) as fh:
-            cache = json.load(fh)
-    key = f"{name} T={T:g} h={cfg['ref_h'][1]:g}"
-    if key not in cache:
-        log(f"  computing the extended-precision reference ({key}; cached afterwards)")
-        coarse, info_c = _disk_extended(ex, T, cfg["ref_h"][0])
-        fine, info_f = _disk_extended(ex, T, cfg["ref_h"][1])
-        diff = (fine[0].astype(np.longdouble) + fine[1]) - (coarse[0].astype(np.longdouble) + coarse[1])
-        cache[key] = {"q_ref_hi": fine[0].tolist(), "q_ref_lo": fine[1].tolist(),
-                      "ref_diff": float(np.max(np.abs(diff))), "fine": info_f, "coarse": info_c,
-                      "how": "Gauss-Legendre s = 5 (order 10) in np.longdouble on the index-reduced ODE, "
-                             f"h = {info_f['h']:g}; ref_diff = max|q(h={info_c['h']:g}) - q(h={info_f['h']:g})|",
-                      "date": datetime.datetime.now().isoformat(timespec="seconds")}
-        C.write_json(cache, path)
-    e = cache[key]
-    log(f"  reference: {e['how']}; ref_diff {e['ref_diff']:.1e}")
-    return {"q_ref": np.asarray(e["q_ref_hi"]) + np.asarray(e["q_ref_lo"]), "how": e["how"],
-            "ref_diff": e["ref_diff"]}
+    return references.cached(results_path("adaptive_wp_reference.json"), f"{name} T={T:g} h={cfg['ref_h'][1]:g}",
+                             lambda h: references.falling_disk(ex, T, h), cfg["ref_h"])
 
 
-# -------------------------------------------------------------------------- sweeping
-class Sweep:
-    """Runs one solver over a list of settings with the timing and stopping rules of the
-    module docstring. ``run(setting) -> dict`` with at least ``err`` (inf on failure)."""
-
-    def __init__(self, label: str, budget: float, repeats: int):
-        self.label, self.budget, self.repeats = label, budget, repeats
-        self.points: list[dict] = []
-        self.stopped = ""
-
-    def go(self, settings, run, warm=None, key="tol"):
-        if warm is not None:
-            t0 = time.perf_counter()
-            try:
-                warm()
-            except Exception as exc:  # a failed warm-up is recorded, the sweep continues
-                log(f"    {self.label}: warm-up failed: {type(exc).__name__}: {exc}")
-            self.warmup_s = time.perf_counter() - t0
-        best_err, since_improved, last_t, prev_t = math.inf, 0, None, None
-        for st in settings:
-            if last_t is not None and prev_t is not None and last_t > 0.5:
-                pred = last_t * max(1.0, last_t / prev_t)
-                if pred > 3 * self.budget:
-                    self.stopped = f"next call predicted to take {pred:.0f} s (> 3x the {self.budget:g} s budget)"
-                    break
-            try:
-                wall, k, rec = time_best(lambda: run(st), self.repeats, REPEAT_LIMIT_S)
-                rec.update(cpu_s=time_best.last_cpu)
-            except Exception as exc:
-                wall, k, rec = math.nan, 1, {"err": math.inf, "message": f"{type(exc).__name__}: {str(exc)[:200]}"}
-            rec.update({key: st, "wall_s": wall, "repeats": k})
-            self.points.append(rec)
-            e = rec["err"]
-            log(f"    {self.label} {key}={st:g}: err {e:.2e}  {wall:.4g} s ({k}x)"
-                + (f"  {rec['steps']} steps" if "steps" in rec else "")
-                + (f" ({rec['rejected']} rejected)" if "rejected" in rec else "")
-                + (f"  {rec['newton_per_step']} Newton it/step" if "newton_per_step" in rec else "")
-                + (f"  max|φ| {rec['max_phi']:.1e}" if "max_phi" in rec else "")
-                + (f"  [{rec['message']}]" if rec.get("message") else ""))
-            prev_t, last_t = last_t, wall
-            if np.isfinite(wall) and wall > self.budget:
-                self.stopped = f"a call took {wall:.0f} s (> {self.budget:g} s budget)"
-                break
-            if e < best_err / 2:
-                best_err, since_improved = e, 0
-            elif np.isfinite(best_err):
-                since_improved += 1
-            if since_improved >= 3 and best_err <= FLOOR_ABOVE:
-                self.stopped = f"error floor (best {best_err:.1e} not improved 2x over three settings)"
-                break
-            if e <= LOW_ERR:
-                self.stopped = f"error {e:.1e} below the range"
-                break
-        if self.stopped:
-            log(f"    {self.label}: stopped: {self.stopped}")
-        return {"label": self.label, "points": self.points, "stopped": self.stopped,
-                "warmup_s": getattr(self, "warmup_s", None)}
-
-
-def _finite(p) -> bool:
-    """Point with a finite, positive error and a finite time (the JSON stores inf as "inf")."""
-    return math.isfinite(float(p["err"])) and math.isfinite(float(p["wall_s"])) and float(p["err"]) > 0
-
-
-def pareto(points):
-    pts = sorted((p for p in points if _finite(p)), key=lambda p: p["wall_s"])
-    front, best = [], math.inf
-    for p in pts:
-        if p["err"] < best:
-            front.append(p)
-            best = p["err"]
-    return front  # time increasing, error decreasing
-
-
-def time_at(points, target=TARGET):
-    """Interpolated wall time at error ``target`` on the Pareto front (log-log), or None."""
-    front = pareto(points)
-    for a, b in zip(front, front[1:]):
-        if a["err"] >= target >= b["err"]:
-            if a["err"] == b["err"]:
-                return a["wall_s"]
-            w = (math.log(target) - math.log(a["err"])) / (math.log(b["err"]) - math.log(a["err"]))
-            return math.exp(math.log(a["wall_s"]) + w * (math.log(b["wall_s"]) - math.log(a["wall_s"])))
-    if front and front[0]["err"] <= target:  # already the cheapest point is accurate enough
-        return front[0]["wall_s"]
-    return None
+def sweep(label, settings, call, post, warm, cfg, budget, setting="tol") -> dict:
+    """:class:`lib.sweeps.Sweep` with this benchmark's rules, its points in this file's names."""
+    out = Sweep(label, budget=budget, repeats=cfg["repeats"], repeat_limit=REPEAT_LIMIT_S, floor=FLOOR_ABOVE,
+                low=LOW_ERR, setting=setting).run(settings, call, post, warm=warm)
+    out["points"] = [{NAMES.get(k, k): v for k, v in p.items()} for p in out["points"]]
+    return out
 
 
 # ------------------------------------------------------------------------- the solvers
-def lob_adaptive(ex, T, q_ref, s, cfg, budget):
+def lobattodae_sweep(label, ex, T, q_ref, cfg, budget, s, settings, options, warm, setting="tol", **fixed) -> dict:
+    """``solve`` with ``options(x)`` for each setting x (and ``fixed``), ``save_every="final"``,
+    error of q(T); ``solve`` with ``options(warm)`` compiles first."""
     method = L.LobattoIIIAIIIB(stages=s)
 
-    def solve(tol):
-        return L.solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, args=ex.args, lam0=ex.lam0, rtol=tol, atol=tol,
-                       save_every="final", throw=False)
+    def call(x):
+        return L.solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, args=ex.args, lam0=ex.lam0, save_every="final",
+                       throw=False, **options(x), **fixed)
 
-    def run(tol):
-        sol = solve(tol)
-        st = sol.stats
-        n, nrej = int(st["n_steps"]), int(st["n_rejected"])
-        err = float(np.max(np.abs(np.asarray(sol.q[-1]) - q_ref))) if sol.success else math.inf
-        return {"err": err, "ok": bool(sol.success), "message": "" if sol.success else str(sol.message)[:200],
-                "steps": n, "rejected": nrej, "max_phi": float(st["max_constraint_residual"]),
-                "newton_per_step": round(float(st["n_newton"]) / max(1, n + nrej), 2),
-                "jacobians_per_step": round(float(st["n_jacobians"]) / max(1, n + nrej), 3),
-                "loop_s": float(st["compile_and_run_time"]) if st.get("compile_and_run_time") is not None else None}
+    def post(sol):
+        return solution_point(sol, lambda sol: np.max(np.abs(np.asarray(sol.q[-1]) - q_ref)))
 
-    return Sweep(f"lobattodae adaptive s={s}", budget, cfg["repeats"]).go(
-        cfg["lob_tols"], run, warm=lambda: solve(1e-6))
-
-
-def lob_constant(ex, T, q_ref, s, cfg, budget):
-    method = L.LobattoIIIAIIIB(stages=s)
-
-    def solve(N):
-        return L.solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, n_steps=int(N), args=ex.args, lam0=ex.lam0,
-                       save_every="final", throw=False)
-
-    def run(N):
-        sol = solve(N)
-        st = sol.stats
-        err = float(np.max(np.abs(np.asarray(sol.q[-1]) - q_ref))) if sol.success else math.inf
-        return {"err": err, "ok": bool(sol.success), "message": "" if sol.success else str(sol.message)[:200],
-                "steps": int(N), "max_phi": float(st["max_constraint_residual"]),
-                "newton_per_step": round(float(st["n_newton"]) / N, 2),
-                "jacobians_per_step": round(float(st["n_jacobians"]) / N, 3)}
-
-    return Sweep(f"lobattodae constant s={s}", budget, cfg["repeats"]).go(
-        cfg["const_N"], run, warm=lambda: solve(cfg["const_N"][0]), key="N")
-
-
-def lob_reversible(ex, T, q_ref, s, cfg, budget):
-    """Reversible step-size control (``ReversibleStepSize``, default density ‖(f, g)‖) with the
-    symmetric scheme; ``first_step`` sets ε = h₀ σ(y₀), so it is the swept setting."""
-    method = L.LobattoIIIAIIIB(stages=s)
-    controller = L.ReversibleStepSize()
-
-    def solve(h0):
-        return L.solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, args=ex.args, lam0=ex.lam0, first_step=h0,
-                       controller=controller, save_every="final", throw=False)
-
-    def run(h0):
-        sol = solve(h0)
-        st = sol.stats
-        n = int(st["n_steps"])
-        err = float(np.max(np.abs(np.asarray(sol.q[-1]) - q_ref))) if sol.success else math.inf
-        return {"err": err, "ok": bool(sol.success), "message": "" if sol.success else str(sol.message)[:200],
-                "steps": n, "max_phi": float(st["max_constraint_residual"]),
-                "newton_per_step": round(float(st["n_newton"]) / max(1, n), 2)}
-
-    return Sweep(f"lobattodae reversible s={s}", budget, cfg["repeats"]).go(
-        cfg["rev_h0"], run, warm=lambda: solve(cfg["rev_h0"][0]), key="first_step")
+    return sweep(label, settings, call, post, lambda: call(warm), cfg, budget, setting)
 
 
 def dop853(ode, T, y0, q_ref, cfg, budget):
-    from scipy.integrate import solve_ivp
-
     n = ode.n
 
-    def run(tol):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # scipy warns when rtol is below 100 eps
-            r = solve_ivp(ode.rhs, (0.0, T), y0, method="DOP853", rtol=tol, atol=tol)
-        err = float(np.max(np.abs(r.y[:n, -1] - q_ref))) if r.success else math.inf
-        return {"err": err, "ok": bool(r.success), "message": "" if r.success else str(r.message)[:200],
-                "steps": len(r.t) - 1, "nfev": int(r.nfev),
-                "max_phi": float(np.max(np.abs(ode.phi(r.y[:n].T, r.y[n:].T))))}
+    def post(r):
+        return {"error": float(np.max(np.abs(r.y[:n, -1] - q_ref))) if r.success else math.inf,
+                "ok": bool(r.success), "message": "" if r.success else str(r.message)[:200], "steps": len(r.t) - 1,
+                "nfev": int(r.nfev), "max_phi": float(np.max(np.abs(ode.phi(r.y[:n].T, r.y[n:].T))))}
 
-    return Sweep("scipy DOP853", budget, cfg["repeats"]).go(cfg["dop_tols"], run, warm=lambda: run(1e-6))
+    def call(tol):
+        return scipy_solve(ode, "DOP853", (0.0, T), y0, tol)
+
+    return sweep("scipy DOP853", cfg["dop_tols"], call, post, lambda: call(1e-6), cfg, budget)
 
 
 def dopri8(ode, T, y0, q_ref, cfg, budget):
     n = ode.n
-    dfx = C.DiffraxDopri8(ode)
-    t0 = time.perf_counter()
-    dfx.final(T, y0, 1e-6, PID_SETS[0])
-    compile_s = time.perf_counter() - t0
+    dfx = Diffrax(ode)
+    compile_s = best_of(lambda: dfx.final(T, y0, 1e-6, PID_SETS[0]), 1).best  # the first call compiles
+
+    def post(out):
+        yT, nacc, nsteps, ok = out
+        return {"error": float(np.max(np.abs(yT[:n] - q_ref))) if ok else math.inf, "ok": ok, "steps": nacc,
+                "rejected": nsteps - nacc}
+
     sweeps = []
     for pid in cfg["pids"]:
-        def run(tol, pid=pid):
-            yT, nacc, nsteps, ok = dfx.final(T, y0, tol, pid)
-            err = float(np.max(np.abs(yT[:n] - q_ref))) if ok else math.inf
-            return {"err": err, "ok": ok, "steps": nacc, "rejected": nsteps - nacc}
-
-        sw = Sweep(f"diffrax Dopri8 PID(p={pid[0]:g}, i={pid[1]:g})", budget, cfg["repeats"]).go(cfg["dfx_tols"], run)
+        sw = sweep(f"diffrax Dopri8 PID(p={pid[0]:g}, i={pid[1]:g})", cfg["dfx_tols"],
+                   lambda tol, pid=pid: dfx.final(T, y0, tol, pid), post, None, cfg, budget)
         sw["pid"] = pid
-        sw["time_at_1e-8"] = time_at(sw["points"])
+        sw["time_at_1e-8"] = time_at(sw["points"], TARGET, "err", "wall_s")
         sweeps.append(sw)
     timed = [s for s in sweeps if s["time_at_1e-8"] is not None]
     best = min(timed, key=lambda s: s["time_at_1e-8"]) if timed else sweeps[0]
     # ‖φ‖ at every step of the point closest to 1e-8 (untimed; compiles a saving variant)
-    pts = [p for p in best["points"] if _finite(p)]
+    pts = [p for p in best["points"] if math.isfinite(p["err"]) and p["err"] > 0 and math.isfinite(p["wall_s"])]
     if pts:
         p = min(pts, key=lambda p: abs(math.log(p["err"] / TARGET)))
         ts, ys = dfx.trajectory(T, y0, p["tol"], best["pid"], p["steps"] + p["rejected"])
@@ -413,32 +186,34 @@ def dopri8(ode, T, y0, q_ref, cfg, budget):
 
 def ida(dae, phi, T, ex, q_ref, cfg, budget):
     n = dae.n
-    solver = IDANumpy(dae)
+    solver = IDA(dae)
 
-    def run(tol):
-        r = solver.solve((0.0, T), ex.q0, ex.p0, ex.lam0, tol, tol)
+    def call(tol):
+        return solver.solve((0.0, T), ex.q0, ex.p0, ex.lam0, tol)
+
+    def post(r):
         ok = r.success and abs(float(r.t[-1]) - T) <= 1e-9 * T
-        err = float(np.max(np.abs(r.y[-1, :n] - q_ref))) if ok else math.inf
-        return {"err": err, "ok": bool(ok), "message": "" if ok else r.message[:200], "steps": r.n_steps,
-                "nfev": r.nfev, "njev": r.njev, "max_phi": float(np.max(np.abs(phi(r.y[:, :n], r.y[:, n:2 * n]))))}
+        return {"error": float(np.max(np.abs(r.y[-1, :n] - q_ref))) if ok else math.inf, "ok": bool(ok),
+                "message": "" if ok else r.message[:200], "steps": r.n_steps, "nfev": r.nfev, "njev": r.njev,
+                "max_phi": float(np.max(np.abs(phi(r.y[:, :n], r.y[:, n:2 * n]))))}
 
-    return Sweep("SUNDIALS IDA", budget, cfg["repeats"]).go(cfg["ida_tols"], run, warm=lambda: run(1e-4))
+    return sweep("SUNDIALS IDA", cfg["ida_tols"], call, post, lambda: call(1e-4), cfg, budget)
 
 
 # ------------------------------------------------------------------------------ driver
 def run_problem(name: str, cfg: dict, budget: float) -> dict:
     T = cfg["T"]
     t_start = time.perf_counter()
-    entry = {"T": T, "loadavg_start": C.loadavg()}
+    entry = {"T": T, "loadavg_start": loadavg()}
     ex = get_example(name, t_end=T)
     ref = reference(name, ex, T, cfg)
     q_ref = ref["q_ref"]
     entry["reference"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in ref.items()}
     y0 = np.r_[ex.q0, ex.p0]
-    ode = C.reduced_ode(name, ex.args)
-    val = C.validate_ode(ode, ex)
-    dae = C.numpy_dae(name, ex.args)
-    val_dae = C.validate_dae(dae, ex)
+    ode = reduced_ode(name, ex.args)
+    val = validate_ode(ode, ex.problem, ex.args, ex.q0, ex.p0)
+    dae = numpy_dae(name, ex.args)
+    val_dae = validate_dae(dae, ex.problem, ex.args, ex.q0, ex.p0, ex.lam0)
     entry["reduced_ode"] = {"how": ode.how, "validation": val}
     entry["ida_dae"] = {"how": dae.how, "validation": val_dae}
     log(f"  reduced ODE ({ode.how}): validation {'OK' if val['ok'] else 'FAILED'} "
@@ -447,22 +222,26 @@ def run_problem(name: str, cfg: dict, budget: float) -> dict:
         f"(res {val_dae['res_rel_err']:.1e}, jac {val_dae['jac_rel_err']:.1e})")
     runs: dict = {}
     for s in cfg["stages"]:
-        runs[f"adaptive s={s}"] = lob_adaptive(ex, T, q_ref, s, cfg, budget)
+        runs[f"adaptive s={s}"] = lobattodae_sweep(f"lobattodae adaptive s={s}", ex, T, q_ref, cfg, budget, s,
+                                                   cfg["lob_tols"], lambda tol: {"rtol": tol, "atol": tol}, 1e-6)
     for s in cfg["const_stages"]:
-        runs[f"constant s={s}"] = lob_constant(ex, T, q_ref, s, cfg, budget)
-    if name in REVERSIBLE:
-        for s in cfg["rev_stages"]:
-            runs[f"reversible s={s}"] = lob_reversible(ex, T, q_ref, s, cfg, budget)
+        runs[f"constant s={s}"] = lobattodae_sweep(f"lobattodae constant s={s}", ex, T, q_ref, cfg, budget, s,
+                                                   cfg["const_N"], lambda n: {"n_steps": int(n)}, cfg["const_N"][0],
+                                                   "N")
+    for s in cfg["rev_stages"] if name in REVERSIBLE else ():
+        # the symmetric scheme's control (default density ‖(f, g)‖); first_step sets ε = h₀ σ(y₀)
+        runs[f"reversible s={s}"] = lobattodae_sweep(f"lobattodae reversible s={s}", ex, T, q_ref, cfg, budget, s,
+                                                     cfg["rev_h0"], lambda h0: {"first_step": h0}, cfg["rev_h0"][0],
+                                                     "first_step", controller=L.ReversibleStepSize())
     if val["ok"]:
         runs["DOP853"] = dop853(ode, T, y0, q_ref, cfg, budget)
         runs["Dopri8"] = dopri8(ode, T, y0, q_ref, cfg, budget)
-    ok_ida, why = ida_available()
-    entry["ida"] = why
+    ok_ida, entry["ida"] = ida_available()
     if ok_ida and val_dae["ok"]:
         runs["IDA"] = ida(dae, ode.phi, T, ex, q_ref, cfg, budget)
     entry["runs"] = runs
     entry["summary"] = summarize(runs)
-    entry["loadavg_end"] = C.loadavg()
+    entry["loadavg_end"] = loadavg()
     entry["seconds"] = time.perf_counter() - t_start
     return entry
 
@@ -475,28 +254,22 @@ def curve(runs, key):
 
 
 def summarize(runs) -> dict:
-    t = {}
-    for key in runs:
-        c = curve(runs, key)
-        t[key] = time_at(c["points"])
-    ad = {k: v for k, v in t.items() if k.startswith("adaptive") and v is not None}
-    co = {k: v for k, v in t.items() if k.startswith("constant") and v is not None}
-    every = {k: v for k, v in t.items() if k.startswith(("adaptive", "constant", "reversible")) and v is not None}
-    best_any = min(every, key=every.get) if every else None
-    best_ad = min(ad, key=ad.get) if ad else None
-    best_co = min(co, key=co.get) if co else None
-    ours = t.get(best_ad) if best_ad else None
+    t = {key: time_at(curve(runs, key)["points"], TARGET, "err", "wall_s") for key in runs}
+
+    def fastest(*kinds):
+        reached = {k: v for k, v in t.items() if k.startswith(kinds) and v is not None}
+        return min(reached, key=reached.get) if reached else None
 
     def ratio(a, b):
+        a, b = t.get(a) if a else None, t.get(b) if b else None
         return a / b if a is not None and b is not None else None
 
+    best_ad, best_co, best_any = fastest("adaptive"), fastest("constant"), fastest("adaptive", "constant", "reversible")
     return {"time_at_1e-8": t, "ours": best_ad, "ours_constant": best_co,
-            "ours_over_dopri8": ratio(ours, t.get("Dopri8")), "ours_over_dop853": ratio(ours, t.get("DOP853")),
-            "ours_over_ida": ratio(ours, t.get("IDA")),
-            "constant_over_dopri8": ratio(t.get(best_co) if best_co else None, t.get("Dopri8")),
-            "adaptive_over_constant": ratio(ours, t.get(best_co) if best_co else None),
-            "ours_any": best_any, "any_over_dopri8": ratio(t.get(best_any) if best_any else None, t.get("Dopri8")),
-            "any_over_dop853": ratio(t.get(best_any) if best_any else None, t.get("DOP853"))}
+            "ours_over_dopri8": ratio(best_ad, "Dopri8"), "ours_over_dop853": ratio(best_ad, "DOP853"),
+            "ours_over_ida": ratio(best_ad, "IDA"), "constant_over_dopri8": ratio(best_co, "Dopri8"),
+            "adaptive_over_constant": ratio(best_ad, best_co), "ours_any": best_any,
+            "any_over_dopri8": ratio(best_any, "Dopri8"), "any_over_dop853": ratio(best_any, "DOP853")}
 
 
 STYLE = {"adaptive s=3": ("#9ecae1", "o", "-"), "adaptive s=4": ("#4292c6", "s", "-"),
@@ -505,33 +278,31 @@ STYLE = {"adaptive s=3": ("#9ecae1", "o", "-"), "adaptive s=4": ("#4292c6", "s",
          "Dopri8": ("#d62728", "v", "-"), "IDA": ("#9467bd", "P", "-")}
 
 
+def _label(key: str, c: dict) -> str:
+    if key == "Dopri8":
+        return f"diffrax Dopri8, PID(p={c['pid'][0]:g}, i={c['pid'][1]:g})"
+    if key in ("DOP853", "IDA"):
+        return {"DOP853": "scipy DOP853 (NumPy rhs)", "IDA": "SUNDIALS IDA (index 2, NumPy residual)"}[key]
+    kind = key.split()[0]
+    return f"lobattodae {key}" + {"adaptive": "", "constant": " (n_steps)", "reversible": " (ReversibleStepSize)"}[kind]
+
+
 def plot(name: str, entry: dict, path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     runs, sm = entry["runs"], entry["summary"]
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 5.2), gridspec_kw={"width_ratios": [3, 2]})
     keys = [k for k in runs if k.startswith("adaptive")] + ([sm["ours_constant"]] if sm.get("ours_constant") else []) \
         + [k for k in runs if k.startswith("reversible")] + [k for k in ("DOP853", "Dopri8", "IDA") if k in runs]
     for key in keys:
         c = curve(runs, key)
-        pts = [p for p in c["points"] if _finite(p)]
+        pts = [p for p in c["points"] if math.isfinite(float(p["err"])) and math.isfinite(float(p["wall_s"]))
+               and float(p["err"]) > 0]
         if not pts:
             continue
         color, marker, ls = STYLE.get(key, ("black", "x", "--"))
-        label = {"DOP853": "scipy DOP853 (NumPy rhs)", "IDA": "SUNDIALS IDA (index 2, NumPy residual)"}.get(key, key)
-        if key == "Dopri8":
-            label = f"diffrax Dopri8, PID(p={c['pid'][0]:g}, i={c['pid'][1]:g})"
-        elif key.startswith("adaptive"):
-            label = f"lobattodae {key}"
-        elif key.startswith("constant"):
-            label = f"lobattodae {key} (n_steps)"
-        elif key.startswith("reversible"):
-            label = f"lobattodae {key} (ReversibleStepSize)"
-        ts = [p["wall_s"] for p in pts]
-        ax.loglog(ts, [max(p["err"], 1e-16) for p in pts], ls, color=color, marker=marker, ms=5, label=label)
+        label = _label(key, c)
+        ax.loglog([p["wall_s"] for p in pts], [max(p["err"], 1e-16) for p in pts], ls, color=color, marker=marker,
+                  ms=5, label=label)
         ph = [(p["wall_s"], p["max_phi"]) for p in pts if isinstance(p.get("max_phi"), float)]
         if ph:
             ax2.loglog(*zip(*ph), ls, color=color, marker=marker, ms=5, label=label)
@@ -556,13 +327,7 @@ def plot(name: str, entry: dict, path: str) -> None:
              f"XLA CPU pool: {pool + ' thread(s)' if pool else 'default'}; "
              "lobattodae: whole solve() call; Dopri8 ‖φ‖ at one tolerance only", fontsize=7, color="gray")
     fig.tight_layout(rect=(0, 0.02, 1, 1))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    log(f"  wrote {path}")
-
-
-def fmt_ratio(x):
-    return "–" if x is None else f"{x:.2f}"
+    save_figure(fig, path)
 
 
 def ratio_table(out: dict) -> str:
@@ -571,71 +336,48 @@ def ratio_table(out: dict) -> str:
         sm = e["summary"]
         t = sm["time_at_1e-8"]
         ms = lambda k: "–" if k is None or t.get(k) is None else f"{1e3 * t[k]:.1f} ms"  # noqa: E731
-        rows.append([name, f"{sm['ours']} ({ms(sm['ours'])})" if sm["ours"] else "not reached",
-                     f"{sm['ours_constant']} ({ms(sm['ours_constant'])})" if sm["ours_constant"] else "–",
-                     ms("Dopri8"), ms("DOP853"), ms("IDA"), fmt_ratio(sm["ours_over_dopri8"]),
-                     fmt_ratio(sm["ours_over_dop853"]), fmt_ratio(sm["ours_over_ida"]),
-                     fmt_ratio(sm["adaptive_over_constant"]),
-                     f"{sm.get('ours_any')} ({ms(sm.get('ours_any'))})" if sm.get("ours_any") else "–",
-                     fmt_ratio(sm.get("any_over_dopri8")), fmt_ratio(sm.get("any_over_dop853"))])
-    return C.md_table(["problem", "ours adaptive (best s)", "ours constant", "Dopri8", "DOP853", "IDA",
-                       "adaptive/Dopri8", "adaptive/DOP853", "adaptive/IDA", "adaptive/constant",
-                       "best of ours", "best/Dopri8", "best/DOP853"], rows)
+        run = lambda k: f"{sm[k]} ({ms(sm[k])})" if sm.get(k) else "–"  # noqa: E731
+        r = lambda k: "–" if sm.get(k) is None else f"{sm[k]:.2f}"  # noqa: E731
+        rows.append([name, run("ours") if sm["ours"] else "not reached", run("ours_constant"), ms("Dopri8"),
+                     ms("DOP853"), ms("IDA"), r("ours_over_dopri8"), r("ours_over_dop853"), r("ours_over_ida"),
+                     r("adaptive_over_constant"), run("ours_any"), r("any_over_dopri8"), r("any_over_dop853")])
+    return md_table(["problem", "ours adaptive (best s)", "ours constant", "Dopri8", "DOP853", "IDA",
+                     "adaptive/Dopri8", "adaptive/DOP853", "adaptive/IDA", "adaptive/constant",
+                     "best of ours", "best/Dopri8", "best/DOP853"], rows)
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="T = 100, fewer settings, 1 call each")
+    ap = cli.parser(__doc__, "quick", "replot", "pin_cpu", "cpu_threads", "watchdog",
+                    quick={"help": "T = 100, fewer settings, 1 call each"})
     ap.add_argument("--problems", nargs="+", choices=PROBLEMS, default=list(PROBLEMS))
     ap.add_argument("--budget", type=float, default=20.0, help="stop a solver's sweep after a call this long [s]")
-    ap.add_argument("--replot", action="store_true", help="redraw the PNGs from the saved JSON")
-    ap.add_argument("--watchdog", type=float, default=1800.0, help="abort with tracebacks after this many s (0: off)")
-    ap.add_argument("--cpu-threads", type=int, default=None,
-                    help="size of XLA's CPU thread pool (lobattodae.set_cpu_threads; default: XLA's)")
-    a = ap.parse_args(argv)
-    if a.cpu_threads is not None:
-        L.set_cpu_threads(a.cpu_threads)  # before the first JAX computation; applies to every solver
+    a = cli.start(ap.parse_args(argv))
     suffix = "_quick" if a.quick else ""
-    path = os.path.join(RESULTS_DIR, f"adaptive_wp{suffix}.json")
-    out = {"meta": {}, "problems": {}}
-    if os.path.exists(path):
-        with open(path) as fh:
-            out = json.load(fh)
+    path = results_path(f"adaptive_wp{suffix}.json")
     if a.replot:
+        out = read_json(path)
         for name, e in out["problems"].items():
-            plot(name, e, os.path.join(RESULTS_DIR, f"{PNG_NAME[name]}{suffix}.png"))
-        print(ratio_table(out))
+            plot(name, e, results_path(f"{PNG_NAME[name]}{suffix}.png"))
+        log(ratio_table(out))
         return 0
-    if a.watchdog > 0:
-        import faulthandler
-
-        faulthandler.dump_traceback_later(a.watchdog, exit=True)
     cfg = config(a.quick)
     start = time.perf_counter()
-    meta = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": C.machine_info(),
-            "command": "PYTHONPATH=src .venv/bin/python benchmarks/adaptive_wp.py " + " ".join(sys.argv[1:]),
-            "lobattodae": getattr(L, "__version__", None), "lobattodae_path": os.path.dirname(L.__file__),
-            "ida": ida_available()[1], "loadavg_start": C.loadavg(), "budget_s": a.budget,
-            "repeat_limit_s": REPEAT_LIMIT_S, "config": cfg,
-            "cpu_threads": {k: os.environ.get(k) for k in ("PJRT_NPROC", "NPROC")}}
+    meta = run_meta(ida=ida_available()[1], budget_s=a.budget, repeat_limit_s=REPEAT_LIMIT_S, config=cfg,
+                    pin_cpu=a.pin_cpu)
     log(f"adaptive_wp: {meta['command']}  (load average {meta['loadavg_start']})")
-    import jax.numpy as jnp
-
-    jnp.zeros(1).block_until_ready()
     for name in a.problems:
         log(f"\n=== {name}, T = {cfg['T']:g} ===")
         e = run_problem(name, cfg, a.budget)
-        e["meta"] = meta
-        out["problems"][name] = e
-        out["meta"] = meta
-        C.write_json(out, path)  # after each problem
-        plot(name, out["problems"][name], os.path.join(RESULTS_DIR, f"{PNG_NAME[name]}{suffix}.png"))
+        out = merged(path, "problems", {name: e}, meta)
+        write_json(out, path)  # after each problem
+        plot(name, out["problems"][name], results_path(f"{PNG_NAME[name]}{suffix}.png"))
         log(f"  ({e['seconds']:.0f} s for {name})")
-    meta["loadavg_end"] = C.loadavg()
+    meta["loadavg_end"] = loadavg()
     meta["wall_seconds"] = time.perf_counter() - start
-    C.write_json(out, path)
+    out = merged(path, "problems", {}, meta)
+    write_json(out, path)
     log("\nWall time at max|q(T) − q_ref| = 1e-8 (interpolated on each solver's Pareto front, log-log):\n")
-    log(ratio_table(json.loads(json.dumps(C.jsonable(out)))))
+    log(ratio_table(read_json(path)))
     log(f"\n({meta['wall_seconds']:.0f} s in all)")
     return 0
 

@@ -23,17 +23,12 @@ Writes ``benchmarks/results/cpu_threads.json``.
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-import _common as C  # noqa: E402
-
-RESULTS = os.path.join(HERE, "results", "cpu_threads.json")
+from lib import cli
+from lib.output import child_env, child_result, md_table, python_child, results_path, run_meta, write_json
 
 CASES = [
     # (label, example, stages, h, steps, batch)
@@ -46,18 +41,15 @@ CASES = [
 ]
 
 CHILD = r"""
-import json, sys, time
+import json, sys
 import numpy as np
-import jax, jax.numpy as jnp
+import jax
 import lobattodae as L
 from lobattodae.examples import get_example
-
-def best(f, *a, k=3):
-    jax.block_until_ready(f(*a))
-    ts = []
-    for _ in range(k):
-        t = time.perf_counter(); jax.block_until_ready(f(*a)); ts.append(time.perf_counter() - t)
-    return min(ts)
+from lib.baselines import Diffrax
+from lib.odes import reduced_ode
+from lib.output import print_result
+from lib.timing import best_of
 
 out = {}
 for label, name, s, h, n, batch in json.loads(sys.argv[1]):
@@ -65,41 +57,36 @@ for label, name, s, h, n, batch in json.loads(sys.argv[1]):
     m = L.LobattoIIIAIIIB(stages=s)
     run = lambda q, p, l: L.integrate(ex.problem, m, 0.0, h, n, q, p, l, ex.args, checkpoints=None)
     if batch is None:
-        t = best(jax.jit(run), ex.q0, ex.p0, ex.lam0)
-        out[label] = t / n
+        f, inputs = jax.jit(run), (ex.q0, ex.p0, ex.lam0)
     else:
         scale = 1.0 + 1e-3 * np.arange(batch)[:, None]
         q0, p0 = np.tile(ex.q0, (batch, 1)), np.tile(ex.p0, (batch, 1)) * scale
         lam0 = np.stack([np.asarray(L.consistent_lambda(ex.problem, 0.0, q, p, ex.lam0, ex.args)) for q, p in zip(q0, p0)])
-        t = best(jax.jit(jax.vmap(run)), q0, p0, lam0)
-        out[label] = t / (n * batch)
-sys.path.insert(0, sys.argv[2])
-import _common as C
+        f, inputs = jax.jit(jax.vmap(run)), (q0, p0, lam0)
+    out[label] = best_of(lambda: f(*inputs), 3, first=True).best / (n * (batch or 1))
 ex = get_example("falling-disk-general")
-ode = C.reduced_ode("falling-disk-general", ex.args)
-dfx = C.DiffraxDopri8(ode)
+dfx = Diffrax(reduced_ode("falling-disk-general", ex.args))
 y0 = np.r_[ex.q0, ex.p0]
-dfx.final(100.0, y0, 1e-12, (0.0, 1.0))
-ts = []
-for _ in range(3):
-    t = time.perf_counter(); _, nacc, nsteps, ok = dfx.final(100.0, y0, 1e-12, (0.0, 1.0)); ts.append(time.perf_counter() - t)
-out["diffrax Dopri8, falling disk (per step)"] = min(ts) / nsteps
-print("RESULT " + json.dumps(out))
+tm = best_of(lambda: dfx.final(100.0, y0, 1e-12, (0.0, 1.0)), 3, first=True)
+out["diffrax Dopri8, falling disk (per step)"] = tm.best / tm.result[2]
+print_result(out)
 """
 
 
 def run_child(one_thread: bool) -> dict:
-    env = {k: v for k, v in os.environ.items() if k not in ("PJRT_NPROC", "NPROC")}
-    if one_thread:
-        env["PJRT_NPROC"] = "1"
-    return C.child_result(CHILD, [json.dumps(CASES), HERE], env)
+    r = child_result(python_child(CHILD, json.dumps(CASES)), child_env(no_cache=False, PJRT_NPROC="1" if one_thread
+                                                                        else None, NPROC=None))
+    if "error" in r:
+        raise SystemExit(f"the child process failed: {r['error']}")
+    return r
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = cli.parser(__doc__)
     ap.add_argument("--rounds", type=int, default=3)
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
+    meta = run_meta()
     rounds: dict = {"default": [], "one thread": []}
     for r in range(a.rounds):
         for key, one in (("default", False), ("one thread", True)):
@@ -110,8 +97,9 @@ def main(argv=None) -> int:
     for label in best["default"]:
         d, o = best["default"][label], best["one thread"][label]
         rows.append([label, f"{1e6 * d:.1f}", f"{1e6 * o:.1f}", f"{d / o:.2f}"])
-    print(C.md_table(["case (µs per step)", "default pool", "one thread", "default / one thread"], rows))
-    C.save_run(RESULTS, "cpu_threads.py", t0, rounds=rounds, best_s_per_step=best)
+    print(md_table(["case (µs per step)", "default pool", "one thread", "default / one thread"], rows))
+    write_json({**meta, "seconds": time.perf_counter() - t0, "rounds": rounds, "best_s_per_step": best},
+               results_path("cpu_threads.json"))
     return 0
 
 

@@ -27,23 +27,18 @@ unless ``--json PATH`` is given).
 
 from __future__ import annotations
 
-import argparse
 import functools
-import os
-import sys
 import time
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import _common as C  # noqa: E402
+import lobattodae as L
+from lib import cli
+from lib.output import finish, log, results_path, run_meta
+from lobattodae.examples import get_example
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import lobattodae as L  # noqa: E402, N812
-from lobattodae.examples import get_example  # noqa: E402
-
-RESULTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 EXAMPLES = ("sleigh", "falling-disk")
 STAGES = (2, 3, 4, 5)
 LAM_STARTS = ("consistent", "auto")
@@ -136,25 +131,23 @@ def _o(x) -> str:
 
 
 def print_constant(name: str, res: dict) -> None:
-    C.log(f"\n== {name}: dense output inside the steps (constant steps), fitted orders "
-          "(in brackets: at the step points)")
-    C.log(f"{'s':>2} {'Λ1':>10} | {'q':>12} | {'p':>12} | {'λ':>12} | {'‖φ‖':>5} | max‖φ‖ at the smallest h")
+    log(f"\n== {name}: dense output inside the steps (constant steps), fitted orders "
+        "(in brackets: at the step points)")
+    log(f"{'s':>2} {'Λ1':>10} | {'q':>12} | {'p':>12} | {'λ':>12} | {'‖φ‖':>5} | max‖φ‖ at the smallest h")
     for (s, lam_start), r in res.items():
         o = r["orders"]
         cells = " | ".join(f"{_o(o[c]):>5} ({_o(o[c + '_steps']):>4})" for c in ("q", "p", "lam"))
-        C.log(f"{s:>2} {lam_start:>10} | {cells} | {_o(o['phi']):>5} | {r['errors']['phi'][-1]:.1e}")
+        log(f"{s:>2} {lam_start:>10} | {cells} | {_o(o['phi']):>5} | {r['errors']['phi'][-1]:.1e}")
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="the sleigh only (~2 min)")
+    ap = cli.parser(__doc__, "quick", quick={"help": "the sleigh only (~2 min)"})
     ap.add_argument("--parts", nargs="*", default=["constant", "adaptive"], choices=["constant", "adaptive"])
     ap.add_argument("--json", default=None,
                     help="where to write the results (default: results/dense_output.json; none with --quick)")
     a = ap.parse_args()
     examples = EXAMPLES[:1] if a.quick else EXAMPLES
-    out = {"date": time.strftime("%Y-%m-%d"), "command": " ".join(sys.argv), "machine": C.machine_info(),
-           "loadavg_start": C.loadavg(), "settings": {"n_theta": N_THETA, "step_counts": STEP_COUNTS,
+    out = {**run_meta(), "settings": {"n_theta": N_THETA, "step_counts": STEP_COUNTS,
                                                       "plateau_rel": PLATEAU_REL, "n_fit": N_FIT,
                                                       "t_adaptive": T_ADAPTIVE, "rtols_adaptive": RTOLS_ADAPTIVE},
            "constant": {}, "adaptive": {}}
@@ -167,19 +160,16 @@ def main() -> None:
             out["constant"][name] = {f"s={s},{ls}": r for (s, ls), r in res.items()}
     if "adaptive" in a.parts:
         ex = get_example("sleigh", t_end=T_ADAPTIVE)
-        C.log(f"\n== sleigh on [0, {T_ADAPTIVE:g}], adaptive: max error of (q, p) between the steps (dense output) "
-              "and at them; λ likewise")
+        log(f"\n== sleigh on [0, {T_ADAPTIVE:g}], adaptive: max error of (q, p) between the steps (dense output) "
+            "and at them; λ likewise")
         for s in STAGES[1:]:
             rows = adaptive_study(ex, s, RTOLS_ADAPTIVE)
             out["adaptive"][f"s={s}"] = rows
             for r in rows:
-                C.log(f"s={s} rtol {r['rtol']:.0e}: {r['n_steps']:5d} steps | (q, p) between {r['qp_between']:.1e}, "
-                      f"at steps {r['qp_steps']:.1e} | λ between {r['lam_between']:.1e}, at steps {r['lam_steps']:.1e} "
-                      f"| ‖φ‖ between {r['phi_between']:.1e}")
-    out["wall_s"] = time.perf_counter() - start
-    out["loadavg_end"] = C.loadavg()
-    C.write_json(out, a.json or (None if a.quick else os.path.join(RESULTS_DIR, "dense_output.json")))
-    C.log(f"({out['wall_s']:.0f} s)")
+                log(f"s={s} rtol {r['rtol']:.0e}: {r['n_steps']:5d} steps | (q, p) between {r['qp_between']:.1e}, "
+                    f"at steps {r['qp_steps']:.1e} | λ between {r['lam_between']:.1e}, at steps {r['lam_steps']:.1e} "
+                    f"| ‖φ‖ between {r['phi_between']:.1e}")
+    finish(out, a.json or (None if a.quick else results_path("dense_output.json")), start)
 
 
 if __name__ == "__main__":

@@ -25,8 +25,8 @@ best of >= 3 calls unless ``--quick``):
    the index-reduced ODE (λ eliminated through the hidden constraint) written as a user
    of each would: a plain Python/NumPy right-hand side for scipy (knife edge by hand; the
    falling disk generated with SymPy ``lambdify``), the same formulas in ``jax.numpy`` for
-   diffrax, both validated against the library's JAX vector field to 1e-12 relative
-   before timing (see ``_common.py``). Wall times after compilation, best of 3; ratios
+   diffrax, both validated against the problem's own vector field to 1e-12 relative
+   before timing (``lib.odes``; the solvers are ``lib.baselines``). Wall times after compilation, best of 3; ratios
    ours/diffrax and DOP853/ours; max ‖φ‖ over each solution (for the ODE solvers φ is
    evaluated on every output step).
 3. ``first_call`` -- a fresh process with ``LOBATTODAE_NO_CACHE=1`` and no
@@ -38,8 +38,8 @@ best of >= 3 calls unless ``--quick``):
    again, 1500, 3000, 777, another t_span, other ``args`` values (twice), other initial
    values; then ``integrate`` called eagerly (not under jit) twice with the same shapes.
    Each call's wall time and the XLA compilations it triggered.
-5. ``size`` -- a chain of N_p nonholonomic particles in Cartesian coordinates (the chain of
-   ``step_cost.py``, n = 3 N_p, m = N_p), n = 6, 21, 60 (n must be a multiple of 3: 21
+5. ``size`` -- a chain of N_p nonholonomic particles in Cartesian coordinates
+   (``lib.problems.particle_chain``, n = 3 N_p, m = N_p), n = 6, 21, 60 (n must be a multiple of 3: 21
    stands for the 20 of the issue), s = 3, h = 0.05: µs per step (whole ``solve``, best of
    3, and the compiled loop alone from ``stats["compile_and_run_time"]`` when present),
    Newton Jacobians and iterations per step, and the ratio n = 60 / n = 6.
@@ -63,13 +63,10 @@ existing file). Exit status 1 when a part failed (its error is in the JSON and p
 
 from __future__ import annotations
 
-import argparse
-import datetime
 import json
 import math
 import os
 import re
-import shlex
 import shutil
 import subprocess
 import sys
@@ -78,32 +75,26 @@ import time
 import traceback
 import warnings
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-try:
-    from baselines import RESULTS_DIR, source_revision  # noqa: E402  (imports lobattodae)
+import lobattodae as L
+from lib import cli
+from lib.baselines import PID_SETS, Diffrax, scipy_solve
+from lib.odes import reduced_ode, validate_ode
+from lib.output import ROOT, child_env, child_result, loadavg, log, md_table, python_child, results_path, \
+    run_meta, with_parts, write_json
+from lib.problems import particle_chain
+from lib.sweeps import search_min_steps, search_tolerance
+from lib.timing import best_of, count_compiles
+from lobattodae.examples import get_example
 
-    import lobattodae as L  # noqa: E402, N812
-    from lobattodae.examples import get_example  # noqa: E402
-except Exception as _exc:  # a working tree in the middle of a rewrite: say so clearly
-    sys.exit(f"engine.py: cannot import lobattodae ({type(_exc).__name__}: {_exc}).\n"
-             "The library (src/) may be in the middle of a change; nothing was measured.")
-
-import _common as C  # noqa: E402
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-
-REPO = os.path.dirname(HERE)
-LIMIT_DIR = os.path.join(REPO, "..", "shared", "limit")
+LIMIT_DIR = os.path.join(ROOT, "..", "shared", "limit")
 TARGET_ERR = 1e-8
 PARTS = ["c_limit", "work_precision", "first_call", "recompile", "size", "threading"]
-log = C.log
-
-# diffrax's documented PID coefficient sets (pcoeff, icoeff): its default I controller, the
-# PI controller it suggests for smooth problems, and one of its "less sensitive" sets
-PID_SETS = [(0.0, 1.0), (0.4, 1.0), (0.3, 0.3)]
+#: The start multipliers compared in part 2.
+LAM_STARTS = ["auto", "previous", "consistent"]
 
 
 def config(quick: bool) -> dict:
@@ -121,8 +112,7 @@ def config(quick: bool) -> dict:
     return {
         "repeats": 3,
         "c_limit": {"s": 5, "N": 5000, "T": 1000.0, "c_repeats": 3},
-        "wp": {"T": 1000.0, "problems": ["knife-edge", "falling-disk"], "stages": [5, 4, 3],
-               "variants": None,  # every lam_start variant the installed lobattodae offers
+        "wp": {"T": 1000.0, "problems": ["knife-edge", "falling-disk"], "stages": [5, 4, 3], "variants": LAM_STARTS,
                "pids": PID_SETS, "lob_probes": 9, "tol_probes": 10, "probe_budget_s": 30.0},
         "first_call": {"processes": 3, "cases": [("falling-disk", 3, 1000, 50.0), ("knife-edge", 3, 1000, 100.0)]},
         "recompile": {"T": 100.0},
@@ -132,22 +122,6 @@ def config(quick: bool) -> dict:
 
 
 # ------------------------------------------------------------------------------ helpers
-def lobatto_variants() -> list[str | None]:
-    """``lam_start`` values this lobattodae accepts (None: the option does not exist)."""
-    offered = []
-    for variant in ("auto", "previous", "consistent"):
-        try:
-            L.LobattoIIIAIIIB(stages=3, lam_start=variant)
-            offered.append(variant)
-        except (TypeError, ValueError):
-            pass
-    return offered or [None]
-
-
-def method_for(s: int, variant: str | None):
-    return L.LobattoIIIAIIIB(stages=s) if variant is None else L.LobattoIIIAIIIB(stages=s, lam_start=variant)
-
-
 def run_solve(problem, method, t_span, q0, p0, n_steps, args, lam0=None):
     """``lobattodae.solve`` with warnings recorded (returned), not printed."""
     with warnings.catch_warnings(record=True) as caught:
@@ -157,47 +131,15 @@ def run_solve(problem, method, t_span, q0, p0, n_steps, args, lam0=None):
     return sol, [str(w.message)[:200] for w in caught]
 
 
-def stats_get(sol, key, default=None):
-    try:
-        return sol.stats.get(key, default)
-    except AttributeError:  # pragma: no cover
-        return default
-
-
 def newton_mean(sol):
-    its = stats_get(sol, "newton_iterations")
+    its = sol.stats.get("newton_iterations")
     return float(np.mean(its)) if its is not None and np.size(its) else None
 
 
-def subprocess_env(no_cache: bool = True, xla_flags: str | None = None) -> dict:
-    """Environment of a measuring subprocess: the same lobattodae as this process (its
-    directory first on PYTHONPATH), no persistent compilation cache, XLA_FLAGS as given
-    (None: removed)."""
-    env = dict(os.environ)
-    root = os.path.dirname(os.path.dirname(os.path.abspath(L.__file__)))
-    env["PYTHONPATH"] = os.pathsep.join([root, HERE] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
-    if no_cache:
-        env.pop("LOBATTODAE_CACHE_DIR", None)
-        env.pop("JAX_COMPILATION_CACHE_DIR", None)
-        env["LOBATTODAE_NO_CACHE"] = "1"
-    env.pop("XLA_FLAGS", None)
-    if xla_flags:
-        env["XLA_FLAGS"] = xla_flags
-    return env
-
-
-def run_json_subprocess(cmd: list[str], env: dict, timeout: float = 900.0) -> dict:
-    """Runs ``cmd``; its last stdout line is JSON. Errors come back as ``{"error": ...}``."""
-    try:
-        res = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return {"error": f"timed out after {timeout:.0f} s"}
-    if res.returncode != 0:
-        return {"error": f"exit {res.returncode}: " + (res.stderr.strip()[-1500:] or res.stdout.strip()[-1500:])}
-    try:
-        return json.loads(res.stdout.strip().splitlines()[-1])
-    except (ValueError, IndexError):
-        return {"error": "no JSON on stdout: " + res.stdout[-500:] + res.stderr[-1000:]}
+def loop_us(sol, n: int) -> float | None:
+    """µs per step in the compiled loop, where ``solve`` reports its time."""
+    loop = sol.stats.get("compile_and_run_time")
+    return None if loop is None else 1e6 * float(loop) / n
 
 
 # ================================================================= 1. the C speed limit
@@ -205,27 +147,22 @@ _C_LINE = re.compile(r"jacobians (\d+)\s+s=(\d+) N=(\d+) T=(\S+) err (\S+) \|phi
                      r"(\S+) us/step\s+(\S+) newton it/step")
 
 
-def part_c_limit(cfg: dict, repeats: int) -> dict:
-    c = cfg["c_limit"]
-    s, N, T = c["s"], c["N"], c["T"]
-    out: dict = {"s": s, "N": N, "T": T}
+def c_runs(s: int, N: int, T: float, repeats: int) -> tuple[list[dict], dict]:
+    """The C program built with gcc into a temporary directory and run ``repeats`` times."""
     src = os.path.abspath(os.path.join(LIMIT_DIR, "knife_edge_c.c"))
-    out["source"] = src
-    # --- C
     if not os.path.exists(src):
         raise FileNotFoundError(f"{src} not found (expected <repo>/../shared/limit/knife_edge_c.c)")
     if shutil.which("gcc") is None:
         raise RuntimeError("gcc not found: cannot build the C speed limit")
+    gcc = subprocess.run(["gcc", "--version"], capture_output=True, text=True, timeout=30).stdout.splitlines()[0]
     with tempfile.TemporaryDirectory() as tmp:
         exe = os.path.join(tmp, "knife_edge_c")
         build = ["gcc", "-O2", "-march=native", "-o", exe, src, "-lm"]
         r = subprocess.run(build, capture_output=True, text=True, timeout=120)
         if r.returncode != 0:
             raise RuntimeError(f"building the C limit failed: {' '.join(build)}\n{r.stderr}")
-        out["c_build"] = " ".join(build[:4] + ["knife_edge_c", "knife_edge_c.c", "-lm"])
-        out["gcc"] = C.gcc_version()
         runs = []
-        for _ in range(c["c_repeats"]):
+        for _ in range(repeats):
             r = subprocess.run([exe, str(s), str(N), f"{T:g}", "1"], capture_output=True, text=True, timeout=300)
             m = _C_LINE.search(r.stdout)
             if r.returncode != 0 or not m:
@@ -233,6 +170,14 @@ def part_c_limit(cfg: dict, repeats: int) -> dict:
             runs.append({"us_per_step": float(m.group(9)), "seconds": float(m.group(8)), "err": float(m.group(5)),
                          "phi": float(m.group(6)), "lam_err": float(m.group(7)), "jacobians": int(m.group(1)),
                          "newton_per_step": float(m.group(10)), "stdout": r.stdout.strip()})
+    return runs, {"source": src, "gcc": gcc, "c_build": " ".join(build[:4] + ["knife_edge_c", "knife_edge_c.c", "-lm"])}
+
+
+def part_c_limit(cfg: dict, repeats: int) -> dict:
+    c = cfg["c_limit"]
+    s, N, T = c["s"], c["N"], c["T"]
+    runs, build = c_runs(s, N, T, c["c_repeats"])
+    out: dict = {"s": s, "N": N, "T": T, **build}
     best_c = min(runs, key=lambda x: x["us_per_step"])
     out["c"] = {"us_per_step": best_c["us_per_step"], "all_us_per_step": [x["us_per_step"] for x in runs],
                 "err_qp": best_c["err"], "phi": best_c["phi"], "jacobians": best_c["jacobians"],
@@ -249,8 +194,7 @@ def part_c_limit(cfg: dict, repeats: int) -> dict:
         raise RuntimeError(f"knife-edge example does not start where the C code does: q0={ex.q0}, p0={ex.p0}, "
                            f"lam0={ex.lam0} (C: q0=0, p0=(0,0,1), λ0=1)")
     method = L.LobattoIIIAIIIB(stages=s)
-    out["method"] = repr(method)
-    out["lam_start"] = getattr(method, "lam_start", None)
+    out["method"], out["lam_start"] = repr(method), method.lam_start
     qe, pe, _ = ex.exact(np.array([T]))
     qe, pe = qe[0], pe[0]
 
@@ -258,41 +202,31 @@ def part_c_limit(cfg: dict, repeats: int) -> dict:
         q, p = np.asarray(q), np.asarray(p)
         return float(max(np.max(np.abs(q - qe)), np.max(np.abs(p - pe)))), float(np.max(np.abs(q - qe)))
 
-    call = lambda: run_solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, N, ex.args)  # noqa: E731
-    t0 = time.perf_counter()
-    call()
-    first = time.perf_counter() - t0
-    wall, times, (sol, warns) = C.best_of(call, max(3, repeats))
+    tm = best_of(lambda: run_solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, N, ex.args), max(3, repeats),
+                 first=True)
+    sol, warns = tm.result
     e_qp, e_q = errs(sol.q[-1], sol.p[-1])
-    loop = stats_get(sol, "compile_and_run_time")
-    out["solve"] = {"first_call_s": first, "wall_s": wall, "all_s": times, "us_per_step": 1e6 * wall / N,
-                    "us_per_step_in_loop": None if loop is None else 1e6 * float(loop) / N,
-                    "err_qp": e_qp, "err_q": e_q, "max_phi": float(np.max(stats_get(sol, "constraint_residual"))),
-                    "newton_per_step": newton_mean(sol),
-                    "jacobians": stats_get(sol, "n_jacobians"), "warnings": warns[:2]}
-    log(f"  lobattodae solve: first call {first:.2f} s, then {1e6 * wall / N:.2f} µs/step "
-        f"(best of {len(times)}: " + ", ".join(f"{x:.3f}" for x in times) + " s)"
-        + ("" if loop is None else f", compiled loop {1e6 * float(loop) / N:.2f} µs/step")
-        + f"; err(q,p) {e_qp:.2e}, err(q) {e_q:.2e}, Newton {out['solve']['newton_per_step'] or float('nan'):.2f}/step, "
+    out["solve"] = {"first_call_s": tm.first, "wall_s": tm.best, "all_s": tm.times, "us_per_step": 1e6 * tm.best / N,
+                    "us_per_step_in_loop": loop_us(sol, N), "err_qp": e_qp, "err_q": e_q,
+                    "max_phi": float(np.max(sol.stats["constraint_residual"])), "newton_per_step": newton_mean(sol),
+                    "jacobians": sol.stats.get("n_jacobians"), "warnings": warns[:2]}
+    log(f"  lobattodae solve: first call {tm.first:.2f} s, then {1e6 * tm.best / N:.2f} µs/step "
+        f"(best of {len(tm.times)}: " + ", ".join(f"{x:.3f}" for x in tm.times) + " s)"
+        + ("" if loop_us(sol, N) is None else f", compiled loop {loop_us(sol, N):.2f} µs/step")
+        + f"; err(q,p) {e_qp:.2e}, err(q) {e_q:.2e}, Newton {out['solve']['newton_per_step'] or math.nan:.2f}/step, "
         f"Jacobians {out['solve']['jacobians']}")
 
     # the loop alone: jax.jit(integrate), compiled by a first call
     h = T / N
     integ = jax.jit(lambda q0, p0, lam0, args: L.integrate(ex.problem, method, 0.0, h, N, q0, p0, lam0, args))
     q0, p0, lam0 = (jnp.asarray(x, jnp.float64) for x in (ex.q0, ex.p0, ex.lam0))
-
-    def call_int():
-        return jax.block_until_ready(integ(q0, p0, lam0, ex.args))
-
-    t0 = time.perf_counter()
-    call_int()
-    first_i = time.perf_counter() - t0
-    wall_i, times_i, (q, p, lam, status) = C.best_of(call_int, max(3, repeats))
+    ti = best_of(lambda: integ(q0, p0, lam0, ex.args), max(3, repeats), first=True)
+    q, p, lam, status = ti.result
     e_qp_i, e_q_i = errs(q[-1], p[-1])
-    out["integrate_jit"] = {"first_call_s": first_i, "wall_s": wall_i, "all_s": times_i,
-                            "us_per_step": 1e6 * wall_i / N, "err_qp": e_qp_i, "err_q": e_q_i, "status": int(status)}
-    log(f"  lobattodae jax.jit(integrate): first call {first_i:.2f} s, then {1e6 * wall_i / N:.2f} µs/step "
-        f"(best of {len(times_i)}); err(q,p) {e_qp_i:.2e}, status {int(status)}")
+    out["integrate_jit"] = {"first_call_s": ti.first, "wall_s": ti.best, "all_s": ti.times,
+                            "us_per_step": 1e6 * ti.best / N, "err_qp": e_qp_i, "err_q": e_q_i, "status": int(status)}
+    log(f"  lobattodae jax.jit(integrate): first call {ti.first:.2f} s, then {1e6 * ti.best / N:.2f} µs/step "
+        f"(best of {len(ti.times)}); err(q,p) {e_qp_i:.2e}, status {int(status)}")
     cu = best_c["us_per_step"]
     out["ratio_solve_over_c"] = out["solve"]["us_per_step"] / cu
     out["ratio_integrate_over_c"] = out["integrate_jit"]["us_per_step"] / cu
@@ -301,9 +235,6 @@ def part_c_limit(cfg: dict, repeats: int) -> dict:
 
 
 # ============================================================= 2. work-precision, 1e-8
-SOLVER_FAILURES = tuple(getattr(L, name) for name in ("SolverError", "NewtonFailure") if hasattr(L, name))
-
-
 def _initial_n(s: int, T: float) -> int:
     """First probe of the N search: h = 0.2 (s=5), 0.08 (s=4), 0.015 (s=3) -- near the
     knife edge's answer at T = 1000; the order-based second probe corrects it."""
@@ -312,113 +243,114 @@ def _initial_n(s: int, T: float) -> int:
 
 
 def wp_lobatto(ex, T, q_exact, s, variant, wcfg, repeats) -> dict:
-    method = method_for(s, variant)
-    label = f"lobattodae s={s}" + ("" if variant is None else f" ({variant} λ)")
+    method = L.LobattoIIIAIIIB(stages=s, lam_start=variant)
+    label = f"lobattodae s={s} ({variant} λ)"
 
     def err_of_n(n):
         try:
             sol, _ = run_solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, n, ex.args, lam0=ex.lam0)
-        except SOLVER_FAILURES as exc:  # a failed Newton solve: N does not meet the target
+        except L.SolverError as exc:  # a failed Newton solve: N does not meet the target
             log(f"      probe N={n}: {type(exc).__name__}: {str(exc)[:120]}")
             return math.inf  # (any other exception -- a broken API -- propagates)
         e = float(np.max(np.abs(sol.q[-1] - q_exact))) if sol.success else math.inf
         log(f"      probe N={n}: err {e:.2e}")
         return e
 
-    srch = C.search_min_steps(err_of_n, _initial_n(s, T), 2 * s - 2, TARGET_ERR,
-                              max_probes=wcfg["lob_probes"], budget_s=wcfg["probe_budget_s"])
+    srch = search_min_steps(err_of_n, _initial_n(s, T), 2 * s - 2, TARGET_ERR,
+                            max_probes=wcfg["lob_probes"], budget_s=wcfg["probe_budget_s"])
     rec = {"solver": label, "s": s, "lam_start": variant, "probes": srch.table()}
     if srch.best is None:
         rec.update(ok=False, message=srch.message)
         log(f"    {label}: {srch.message}")
         return rec
     N = srch.best
-    call = lambda: run_solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, N, ex.args, lam0=ex.lam0)  # noqa: E731
-    call()  # compiled already by the search unless its last probe used another chunk length
-    wall, times, (sol, warns) = C.best_of(call, repeats)
+    # compiled already by the search unless its last probe used another chunk length
+    tm = best_of(lambda: run_solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, N, ex.args, lam0=ex.lam0), repeats,
+                 first=True)
+    sol, warns = tm.result
     err = float(np.max(np.abs(sol.q[-1] - q_exact)))
-    loop = stats_get(sol, "compile_and_run_time")
-    rec.update(ok=bool(err <= TARGET_ERR), setting=f"N={N}", N=N, wall_s=wall, all_s=times, err_q=err,
-               max_phi=float(np.max(stats_get(sol, "constraint_residual"))), us_per_step=1e6 * wall / N,
+    loop = sol.stats.get("compile_and_run_time")
+    rec.update(ok=bool(err <= TARGET_ERR), setting=f"N={N}", N=N, wall_s=tm.best, all_s=tm.times, err_q=err,
+               max_phi=float(np.max(sol.stats["constraint_residual"])), us_per_step=1e6 * tm.best / N,
                loop_s=None if loop is None else float(loop), newton_per_step=newton_mean(sol),
-               jacobians=stats_get(sol, "n_jacobians"), warnings=warns[:2])
-    log(f"    {label}: N={N} err {err:.2e} wall {wall:.3f} s ({1e6 * wall / N:.1f} µs/step) "
+               jacobians=sol.stats.get("n_jacobians"), warnings=warns[:2])
+    log(f"    {label}: N={N} err {err:.2e} wall {tm.best:.3f} s ({1e6 * tm.best / N:.1f} µs/step) "
         f"max|φ| {rec['max_phi']:.1e}" + ("  [warning: " + warns[0][:80] + "]" if warns else ""))
     return rec
 
 
 def wp_diffrax(ode, T, y0, q_exact, wcfg, repeats) -> dict:
     n = ode.n
-    dfx = C.DiffraxDopri8(ode)
-    t0 = time.perf_counter()
-    dfx.final(T, y0, 1e-6, PID_SETS[0])
-    compile_s = time.perf_counter() - t0
+    dfx = Diffrax(ode)
+    compile_s = best_of(lambda: dfx.final(T, y0, 1e-6, PID_SETS[0]), 1).best  # the first call compiles
     recs = []
     for pid in wcfg["pids"]:
         def err_of_tol(tol, pid=pid):
             yT, nacc, nsteps, ok = dfx.final(T, y0, tol, pid)
             return float(np.max(np.abs(yT[:n] - q_exact))) if ok else math.inf
 
-        srch = C.search_tolerance(err_of_tol, 1e-10, TARGET_ERR, tol_min=1e-15, max_probes=wcfg["tol_probes"],
-                                  budget_s=wcfg["probe_budget_s"])
+        srch = search_tolerance(err_of_tol, 1e-10, TARGET_ERR, tol_min=1e-15, max_probes=wcfg["tol_probes"],
+                                budget_s=wcfg["probe_budget_s"])
         rec = {"solver": f"diffrax Dopri8 PID(p={pid[0]:g}, i={pid[1]:g})", "pid": pid, "probes": srch.table()}
+        recs.append(rec)
         if srch.best is None:
             rec.update(ok=False, message=srch.message)
             log(f"    {rec['solver']}: {srch.message}")
-            recs.append(rec)
             continue
         tol = srch.best
-        wall, times, (yT, nacc, nsteps, ok) = C.best_of(lambda: dfx.final(T, y0, tol, pid), repeats)
+        tm = best_of(lambda: dfx.final(T, y0, tol, pid), repeats)
+        yT, nacc, nsteps, ok = tm.result
         err = float(np.max(np.abs(yT[:n] - q_exact)))
         ts, ys = dfx.trajectory(T, y0, tol, pid, nsteps)
         phi = float(np.max(np.abs(ode.phi(ys[:, :n], ys[:, n:]))))
-        rec.update(ok=bool(ok and err <= TARGET_ERR), setting=f"tol={tol:g}", tol=tol, wall_s=wall, all_s=times,
+        rec.update(ok=bool(ok and err <= TARGET_ERR), setting=f"tol={tol:g}", tol=tol, wall_s=tm.best, all_s=tm.times,
                    err_q=err, max_phi=phi, steps=nacc, steps_tried=nsteps, phi_points=len(ts))
-        log(f"    {rec['solver']}: rtol=atol={tol:g} err {err:.2e} wall {wall:.4f} s, {nacc} steps "
+        log(f"    {rec['solver']}: rtol=atol={tol:g} err {err:.2e} wall {tm.best:.4f} s, {nacc} steps "
             f"({nsteps} tried), max|φ| {phi:.1e}")
-        recs.append(rec)
     good = [r for r in recs if r.get("ok")]
-    best = min(good, key=lambda r: r["wall_s"]) if good else None
-    return {"compile_s": compile_s, "runs": recs, "best": best}
+    return {"compile_s": compile_s, "runs": recs, "best": min(good, key=lambda r: r["wall_s"]) if good else None}
 
 
 def wp_scipy(ode, T, y0, q_exact, wcfg, repeats) -> dict:
-    from scipy.integrate import solve_ivp
-
     n = ode.n
 
-    def run(tol):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # scipy warns when rtol is below 100 eps and raises it
-            return solve_ivp(ode.rhs, (0.0, T), y0, method="DOP853", rtol=tol, atol=tol)
-
     def err_of_tol(tol):
-        r = run(tol)
+        r = scipy_solve(ode, "DOP853", (0.0, T), y0, tol)
         return float(np.max(np.abs(r.y[:n, -1] - q_exact))) if r.success else math.inf
 
-    srch = C.search_tolerance(err_of_tol, 1e-10, TARGET_ERR, tol_min=2.3e-14, max_probes=wcfg["tol_probes"],
-                              budget_s=wcfg["probe_budget_s"])
+    srch = search_tolerance(err_of_tol, 1e-10, TARGET_ERR, tol_min=2.3e-14, max_probes=wcfg["tol_probes"],
+                            budget_s=wcfg["probe_budget_s"])
     rec = {"solver": "scipy DOP853", "rhs": ode.how, "probes": srch.table()}
     if srch.best is None:
         rec.update(ok=False, message=srch.message)
         log(f"    scipy DOP853: {srch.message}")
         return rec
     tol = srch.best
-    wall, times, r = C.best_of(lambda: run(tol), repeats)
+    tm = best_of(lambda: scipy_solve(ode, "DOP853", (0.0, T), y0, tol), repeats)
+    r = tm.result
     err = float(np.max(np.abs(r.y[:n, -1] - q_exact)))
     phi = float(np.max(np.abs(ode.phi(r.y[:n].T, r.y[n:].T))))
-    rec.update(ok=bool(r.success and err <= TARGET_ERR), setting=f"tol={tol:g}", tol=tol, wall_s=wall, all_s=times,
-               err_q=err, max_phi=phi, steps=len(r.t) - 1, nfev=int(r.nfev))
-    log(f"    scipy DOP853: rtol=atol={tol:g} err {err:.2e} wall {wall:.3f} s, {len(r.t) - 1} steps, "
+    rec.update(ok=bool(r.success and err <= TARGET_ERR), setting=f"tol={tol:g}", tol=tol, wall_s=tm.best,
+               all_s=tm.times, err_q=err, max_phi=phi, steps=len(r.t) - 1, nfev=int(r.nfev))
+    log(f"    scipy DOP853: rtol=atol={tol:g} err {err:.2e} wall {tm.best:.3f} s, {len(r.t) - 1} steps, "
         f"{r.nfev} RHS calls, max|φ| {phi:.1e}")
     return rec
+
+
+def _guarded(errors: list, label: str, fn, *args):
+    """``fn(*args)``, or None with the exception recorded in ``errors`` (a part goes on)."""
+    try:
+        return fn(*args)
+    except Exception as exc:
+        errors.append(f"{label}: {type(exc).__name__}: {exc}")
+        log("    FAILED " + errors[-1])
+        return None
 
 
 def part_work_precision(cfg: dict, repeats: int) -> dict:
     wcfg = cfg["wp"]
     T = wcfg["T"]
-    variants = wcfg["variants"] or lobatto_variants()
-    out: dict = {"T": T, "target_err_q": TARGET_ERR, "variants": variants, "problems": {}}
+    out: dict = {"T": T, "target_err_q": TARGET_ERR, "variants": wcfg["variants"], "problems": {}}
     for name in wcfg["problems"]:
         log(f"  -- {name}, T = {T:g}")
         ex = get_example(name, t_end=T)
@@ -427,30 +359,23 @@ def part_work_precision(cfg: dict, repeats: int) -> dict:
         res: dict = {"lobattodae": [], "errors": []}
         out["problems"][name] = res
         # competitors' right-hand sides, validated first
-        ode = C.reduced_ode(name, ex.args)
-        val = C.validate_ode(ode, ex)
+        ode = reduced_ode(name, ex.args)
+        val = validate_ode(ode, ex.problem, ex.args, ex.q0, ex.p0)
         res["reduced_ode"] = {"how": ode.how, "build_s": ode.build_seconds, "validation": val}
-        log(f"    index-reduced ODE: {ode.how}; validation vs the library's JAX vector field: "
+        log(f"    index-reduced ODE: {ode.how}; validation vs the problem's vector field: "
             f"rhs {val['rhs_numpy_rel_err']:.1e} (NumPy), {val['rhs_jax_rel_err']:.1e} (JAX), φ {val['phi_rel_err']:.1e} "
             f"relative -> {'OK' if val['ok'] else 'FAILED'}")
         for s in wcfg["stages"]:
-            for variant in variants:
-                try:
-                    res["lobattodae"].append(wp_lobatto(ex, T, q_exact, s, variant, wcfg, repeats))
-                except Exception as exc:
-                    msg = f"lobattodae s={s} {variant}: {type(exc).__name__}: {exc}"
-                    res["errors"].append(msg)
-                    log("    FAILED " + msg)
+            for variant in wcfg["variants"]:
+                rec = _guarded(res["errors"], f"lobattodae s={s} {variant}", wp_lobatto, ex, T, q_exact, s, variant,
+                               wcfg, repeats)
+                if rec is not None:
+                    res["lobattodae"].append(rec)
         if val["ok"]:
             for key, fn in (("diffrax", wp_diffrax), ("dop853", wp_scipy)):
-                try:
-                    res[key] = fn(ode, T, y0, q_exact, wcfg, repeats)
-                except Exception as exc:
-                    msg = f"{key}: {type(exc).__name__}: {exc}"
-                    res["errors"].append(msg)
-                    log("    FAILED " + msg)
+                res[key] = _guarded(res["errors"], key, fn, ode, T, y0, q_exact, wcfg, repeats)
         else:
-            res["errors"].append("index-reduced ODE does not match the library's vector field: ODE solvers not run")
+            res["errors"].append("index-reduced ODE does not match the problem's vector field: ODE solvers not run")
         out.setdefault("errors", []).extend(f"{name}: {e}" for e in res["errors"])
         good = [r for r in res["lobattodae"] if r.get("ok")]
         ours = min(good, key=lambda r: r["wall_s"]) if good else None
@@ -458,14 +383,13 @@ def part_work_precision(cfg: dict, repeats: int) -> dict:
         ours5 = min(s5, key=lambda r: r["wall_s"]) if s5 else None
         dfx = (res.get("diffrax") or {}).get("best")
         dop = res.get("dop853") if (res.get("dop853") or {}).get("ok") else None
-        res["summary"] = {
+        res["summary"] = sm = {
             "ours_best": _brief(ours), "ours_s5": _brief(ours5), "diffrax": _brief(dfx), "dop853": _brief(dop),
             "ours_over_diffrax": ours["wall_s"] / dfx["wall_s"] if ours and dfx else None,
             "dop853_over_ours": dop["wall_s"] / ours["wall_s"] if ours and dop else None,
             "ours_s5_over_diffrax": ours5["wall_s"] / dfx["wall_s"] if ours5 and dfx else None,
             "dop853_over_ours_s5": dop["wall_s"] / ours5["wall_s"] if ours5 and dop else None,
         }
-        sm = res["summary"]
         log(f"    => cheapest lobattodae: {_fmt_brief(sm['ours_best'])}; diffrax: {_fmt_brief(sm['diffrax'])}; "
             f"DOP853: {_fmt_brief(sm['dop853'])}; ours/diffrax {_fx(sm['ours_over_diffrax'])}, "
             f"DOP853/ours {_fx(sm['dop853_over_ours'])}")
@@ -482,54 +406,49 @@ def _fmt_brief(b):
     return "none met the target" if not b else f"{b['solver']} {b['setting']} {b['wall_s']:.3g} s"
 
 
-def _fx(x, fmt=".2f"):
-    return "–" if x is None else f"{x:{fmt}}x"
+def _fx(x, spec=".2f"):
+    return "–" if x is None else f"{x:{spec}}x"
 
 
 # ========================================================= 3. first call, fresh process
 FIRST_CALL_SCRIPT = r"""
-import json, logging, re, sys, time, warnings
+import sys, time, warnings
 t0 = time.perf_counter()
 import lobattodae as L
 from lobattodae.examples import get_example
 t_import = time.perf_counter() - t0
 import jax
+from lib.output import print_result
+from lib.timing import count_compiles
 name, s, N, T = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
-pat = re.compile(r"Finished XLA compilation of (.*) in ([0-9.eE+-]+) sec")
-comp = []
-class H(logging.Handler):
-    def emit(self, r):
-        m = pat.search(r.getMessage())
-        if m: comp.append(float(m.group(2)))
-lg = logging.getLogger("jax"); lg.addHandler(H()); lg.setLevel(logging.DEBUG)
-jax.config.update("jax_log_compiles", True)
 ex = get_example(name, t_end=T)
 m = L.LobattoIIIAIIIB(stages=s)
 warnings.simplefilter("ignore")
-t0 = time.perf_counter()
-sol = L.solve(ex.problem, m, (0.0, T), ex.q0, ex.p0, n_steps=N, args=ex.args)
-t_first = time.perf_counter() - t0
-n_first, c_first = len(comp), sum(comp)
-t0 = time.perf_counter()
-sol = L.solve(ex.problem, m, (0.0, T), ex.q0, ex.p0, n_steps=N, args=ex.args)
-t_second = time.perf_counter() - t0
-print(json.dumps({"import_s": t_import, "first_solve_s": t_first, "second_solve_s": t_second,
-                  "xla_compilations_first": n_first, "xla_compile_s_first": c_first,
-                  "xla_compilations_second": len(comp) - n_first, "success": bool(sol.success),
-                  "jax_cache_dir": str(jax.config.jax_compilation_cache_dir)}))
+with count_compiles() as first:
+    t0 = time.perf_counter()
+    sol = L.solve(ex.problem, m, (0.0, T), ex.q0, ex.p0, n_steps=N, args=ex.args)
+    t_first = time.perf_counter() - t0
+with count_compiles() as second:
+    t0 = time.perf_counter()
+    sol = L.solve(ex.problem, m, (0.0, T), ex.q0, ex.p0, n_steps=N, args=ex.args)
+    t_second = time.perf_counter() - t0
+print_result({"import_s": t_import, "first_solve_s": t_first, "second_solve_s": t_second,
+              "xla_compilations_first": first.summary()["xla_compilations"],
+              "xla_compile_s_first": first.summary()["xla_compile_s"],
+              "xla_compilations_second": second.summary()["xla_compilations"], "success": bool(sol.success),
+              "jax_cache_dir": str(jax.config.jax_compilation_cache_dir)})
 """
 
 
 def part_first_call(cfg: dict, repeats: int) -> dict:
     fc = cfg["first_call"]
-    env = subprocess_env(no_cache=True)
     out: dict = {"env": {"LOBATTODAE_NO_CACHE": "1", "LOBATTODAE_CACHE_DIR": None, "JAX_COMPILATION_CACHE_DIR": None},
                  "cases": {}}
     for name, s, N, T in fc["cases"]:
         key = f"{name} s={s} N={N}"
         runs = []
         for _ in range(fc["processes"]):
-            r = run_json_subprocess([sys.executable, "-c", FIRST_CALL_SCRIPT, name, str(s), str(N), str(T)], env)
+            r = child_result(python_child(FIRST_CALL_SCRIPT, name, str(s), str(N), str(T)), child_env(), 900.0)
             if "error" in r:
                 out["cases"][key] = {"error": r["error"]}
                 out.setdefault("errors", []).append(f"{key}: {r['error'][-300:]}")
@@ -551,6 +470,17 @@ def part_first_call(cfg: dict, repeats: int) -> dict:
 
 
 # =============================================================== 4. recompilation
+def _compiles(label: str, call) -> dict:
+    with count_compiles() as cc:
+        t0 = time.perf_counter()
+        success = call()
+        wall = time.perf_counter() - t0
+    row = {"call": label, "wall_s": wall, "success": success, **cc.summary()}
+    log(f"  {row['call']:55s} {wall * 1e3:9.1f} ms   XLA compilations {row['xla_compilations']:3d} "
+        f"({row['xla_compile_s']:.2f} s), tracings {row['tracings']}")
+    return row
+
+
 def part_recompile(cfg: dict, repeats: int) -> dict:
     T = cfg["recompile"]["T"]
     method = L.LobattoIIIAIIIB(stages=3)
@@ -568,35 +498,17 @@ def part_recompile(cfg: dict, repeats: int) -> dict:
         ("the same args again", other_args, (0.0, T), 1000),
         ("other q0, p0 (ω=2, v0=0.5), n_steps=1000", other_init, (0.0, T), 1000),
     ]
-    rows = []
-    for label, ex, t_span, n in plan:
-        with C.count_compiles() as cc:
-            t0 = time.perf_counter()
-            sol, _ = run_solve(ex.problem, method, t_span, ex.q0, ex.p0, n, ex.args)
-            wall = time.perf_counter() - t0
-        row = {"call": f"solve: {label}", "wall_s": wall, "success": bool(sol.success), **C.compile_summary(cc)}
-        rows.append(row)
-        log(f"  {row['call']:55s} {wall * 1e3:9.1f} ms   XLA compilations {row['xla_compilations']:3d} "
-            f"({row['xla_compile_s']:.2f} s), tracings {row['tracings']}")
+    rows = [_compiles(f"solve: {label}", lambda ex=ex, t_span=t_span, n=n: bool(
+        run_solve(ex.problem, method, t_span, ex.q0, ex.p0, n, ex.args)[0].success)) for label, ex, t_span, n in plan]
     h = T / 1000
     for k in (1, 2):
-        with C.count_compiles() as cc:
-            t0 = time.perf_counter()
-            res = L.integrate(base.problem, method, 0.0, h, 1000, base.q0, base.p0, base.lam0, base.args)
-            jax.block_until_ready(res)
-            wall = time.perf_counter() - t0
-        row = {"call": f"integrate eagerly (not under jit), call {k}", "wall_s": wall,
-               "success": int(res[3]) == 0, **C.compile_summary(cc)}
-        rows.append(row)
-        log(f"  {row['call']:55s} {wall * 1e3:9.1f} ms   XLA compilations {row['xla_compilations']:3d} "
-            f"({row['xla_compile_s']:.2f} s), tracings {row['tracings']}")
+        rows.append(_compiles(f"integrate eagerly (not under jit), call {k}", lambda: int(jax.block_until_ready(
+            L.integrate(base.problem, method, 0.0, h, 1000, base.q0, base.p0, base.lam0, base.args))[3]) == 0))
     return {"example": "knife-edge", "s": 3, "T": T, "calls": rows}
 
 
 # ======================================================================= 5. size
 def part_size(cfg: dict, repeats: int) -> dict:
-    from step_cost import particle_chain
-
     sc = cfg["size"]
     N, h = sc["N"], sc["h"]
     method = L.LobattoIIIAIIIB(stages=3)
@@ -605,22 +517,18 @@ def part_size(cfg: dict, repeats: int) -> dict:
         if n % 3:
             raise ValueError(f"n = {n} is not a multiple of 3")
         problem, q0, p0, args = particle_chain(n // 3)
-        call = lambda: run_solve(problem, method, (0.0, N * h), q0, p0, N, args)  # noqa: E731
-        t0 = time.perf_counter()
-        call()
-        first = time.perf_counter() - t0
-        wall, times, (sol, _) = C.best_of(call, repeats)
-        loop = stats_get(sol, "compile_and_run_time")
-        jac = stats_get(sol, "n_jacobians")
-        row = {"n": n, "m": n // 3, "N": N, "first_call_s": first, "wall_s": wall, "all_s": times,
-               "us_per_step": 1e6 * wall / N, "us_per_step_in_loop": None if loop is None else 1e6 * float(loop) / N,
+        tm = best_of(lambda: run_solve(problem, method, (0.0, N * h), q0, p0, N, args), repeats, first=True)
+        sol = tm.result[0]
+        jac = sol.stats.get("n_jacobians")
+        row = {"n": n, "m": n // 3, "N": N, "first_call_s": tm.first, "wall_s": tm.best, "all_s": tm.times,
+               "us_per_step": 1e6 * tm.best / N, "us_per_step_in_loop": loop_us(sol, N),
                "jacobians_per_step": None if jac is None else float(jac) / N, "newton_per_step": newton_mean(sol),
-               "success": bool(sol.success), "max_phi": float(np.max(stats_get(sol, "constraint_residual")))}
+               "success": bool(sol.success), "max_phi": float(np.max(sol.stats["constraint_residual"]))}
         rows.append(row)
         log(f"  chain n={n:3d} (m={n // 3:2d}): {row['us_per_step']:9.1f} µs/step"
-            + ("" if loop is None else f" ({row['us_per_step_in_loop']:.1f} in the compiled loop)")
-            + f", Jacobians/step {row['jacobians_per_step'] if jac is not None else float('nan'):.3f}, "
-            f"Newton/step {row['newton_per_step'] or float('nan'):.2f}, first call {first:.2f} s")
+            + ("" if row["us_per_step_in_loop"] is None else f" ({row['us_per_step_in_loop']:.1f} in the compiled loop)")
+            + f", Jacobians/step {row['jacobians_per_step'] if jac is not None else math.nan:.3f}, "
+            f"Newton/step {row['newton_per_step'] or math.nan:.2f}, first call {tm.first:.2f} s")
     out = {"s": 3, "h": h, "N": N, "rows": rows,
            "note": "n must be a multiple of 3 (x, y, z per particle): n = 21 stands for the issue's n = 20"}
     if len(rows) >= 2:
@@ -632,34 +540,28 @@ def part_size(cfg: dict, repeats: int) -> dict:
 
 # ================================================================== 6. threading
 THREADING_SCRIPT = r"""
-import json, sys, time, warnings
-import numpy as np
+import json, sys, warnings
 import lobattodae as L
 from lobattodae.examples import get_example
+from lib.output import print_result
+from lib.problems import particle_chain
+from lib.timing import best_of
 cfg = json.loads(sys.argv[1])
 warnings.simplefilter("ignore")
 out = {}
-def best(fn, k):
-    ts = []
-    for _ in range(k):
-        t0 = time.perf_counter(); fn(); ts.append(time.perf_counter() - t0)
-    return min(ts), ts
 s, N, T = cfg["knife"]
 ex = get_example("knife-edge", t_end=T)
 m = L.LobattoIIIAIIIB(stages=s)
-f = lambda: L.solve(ex.problem, m, (0.0, T), ex.q0, ex.p0, n_steps=N, args=ex.args)
-f()
-b, ts = best(f, cfg["repeats"])
-out["knife"] = {"us_per_step": 1e6 * b / N, "all_s": ts}
+tm = best_of(lambda: L.solve(ex.problem, m, (0.0, T), ex.q0, ex.p0, n_steps=N, args=ex.args), cfg["repeats"],
+             first=True)
+out["knife"] = {"us_per_step": 1e6 * tm.best / N, "all_s": tm.times}
 if cfg.get("chain_n"):
-    from step_cost import particle_chain
     problem, q0, p0, args = particle_chain(cfg["chain_n"] // 3)
-    m3 = L.LobattoIIIAIIIB(stages=3); Nc = cfg["chain_N"]
-    f = lambda: L.solve(problem, m3, (0.0, 0.05 * Nc), q0, p0, n_steps=Nc, args=args)
-    f()
-    b, ts = best(f, cfg["repeats"])
-    out["chain"] = {"us_per_step": 1e6 * b / Nc, "all_s": ts}
-print(json.dumps(out))
+    m3, Nc = L.LobattoIIIAIIIB(stages=3), cfg["chain_N"]
+    tm = best_of(lambda: L.solve(problem, m3, (0.0, 0.05 * Nc), q0, p0, n_steps=Nc, args=args), cfg["repeats"],
+                 first=True)
+    out["chain"] = {"us_per_step": 1e6 * tm.best / Nc, "all_s": tm.times}
+print_result(out)
 """
 
 XLA_SINGLE_THREAD_CANDIDATES = ["--xla_cpu_multi_thread_eigen=false", "--intra_op_parallelism_threads=1"]
@@ -670,12 +572,11 @@ def accepted_xla_flags() -> tuple[list[str], dict]:
     ok, verdict = [], {}
     probe = "import jax, jax.numpy as jnp; print(float(jax.jit(lambda x: x @ x)(jnp.ones((8, 8))).sum()))"
     for flag in XLA_SINGLE_THREAD_CANDIDATES:
-        r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120,
-                           env=subprocess_env(no_cache=True, xla_flags=flag))
-        good = r.returncode == 0
+        r = subprocess.run(python_child(probe), capture_output=True, text=True, timeout=120,
+                           env=child_env(XLA_FLAGS=flag))
         tail = (r.stderr.strip().splitlines() or [""])[-1][:200]
-        verdict[flag] = "accepted" if good else f"rejected ({tail})"
-        if good:
+        verdict[flag] = "accepted" if r.returncode == 0 else f"rejected ({tail})"
+        if r.returncode == 0:
             ok.append(flag)
     return ok, verdict
 
@@ -693,8 +594,7 @@ def part_threading(cfg: dict, repeats: int) -> dict:
         variants.append(("taskset -c 0 (one CPU), no XLA_FLAGS", None, ["taskset", "-c", "0"]))
     out = {"flags_tried": verdict, "config": wcfg, "variants": {}}
     for label, xla, prefix in variants:
-        env = subprocess_env(no_cache=True, xla_flags=xla)
-        r = run_json_subprocess(prefix + [sys.executable, "-c", THREADING_SCRIPT, json.dumps(wcfg)], env)
+        r = child_result(prefix + python_child(THREADING_SCRIPT, json.dumps(wcfg)), child_env(XLA_FLAGS=xla), 900.0)
         out["variants"][label] = r
         if "error" in r:
             out.setdefault("errors", []).append(f"{label}: {r['error'][-300:]}")
@@ -717,7 +617,7 @@ def summary_markdown(res: dict) -> str:
     parts = []
     p = res.get("c_limit")
     if p and "error" not in p:
-        parts.append(f"**1. C speed limit** (knife edge, s = {p['s']}, N = {p['N']}, T = {p['T']:g})\n\n" + C.md_table(
+        parts.append(f"**1. C speed limit** (knife edge, s = {p['s']}, N = {p['N']}, T = {p['T']:g})\n\n" + md_table(
             ["", "µs/step", "ours/C", "err (q,p) at T", "err q at T"],
             [["C (knife_edge_c, gcc -O2 -march=native)", p["c"]["us_per_step"], 1.0, p["c"]["err_qp"], None],
              ["lobattodae solve (compiled)", p["solve"]["us_per_step"], p["ratio_solve_over_c"], p["solve"]["err_qp"],
@@ -731,52 +631,47 @@ def summary_markdown(res: dict) -> str:
             sm = r.get("summary", {})
             for key, lab in (("ours_best", "lobattodae (cheapest)"), ("ours_s5", "lobattodae s=5"),
                              ("diffrax", "diffrax Dopri8"), ("dop853", "scipy DOP853")):
-                b = sm.get(key)
-                rows.append([name, lab, None if not b else f"{b['solver']} {b['setting']}",
-                             None if not b else b["wall_s"], None if not b else b["err_q"],
-                             None if not b else b["max_phi"]])
+                b = sm.get(key) or {}
+                rows.append([name, lab, f"{b['solver']} {b['setting']}" if b else None, b.get("wall_s"),
+                             b.get("err_q"), b.get("max_phi")])
             rows.append([name, "**ratios**", f"ours/diffrax {_fx(sm.get('ours_over_diffrax'))}, "
                          f"DOP853/ours {_fx(sm.get('dop853_over_ours'))} (s=5: {_fx(sm.get('ours_s5_over_diffrax'))}, "
                          f"{_fx(sm.get('dop853_over_ours_s5'))})", None, None, None])
         parts.append(f"**2. Work–precision**, T = {p['T']:g}, max-norm error of q(T) ≤ {p['target_err_q']:g}\n\n"
-                     + C.md_table(["problem", "solver", "setting", "wall s", "err q(T)", "max ‖φ‖"], rows))
+                     + md_table(["problem", "solver", "setting", "wall s", "err q(T)", "max ‖φ‖"], rows))
     p = res.get("first_call")
     if p and "error" not in p:
         rows = [[k, v.get("import_s"), v.get("first_solve_s"), v.get("xla_compilations_first"),
                  v.get("xla_compile_s_first"), v.get("second_solve_s")] if "error" not in v else [k, "FAILED"] + [None] * 4
                 for k, v in p["cases"].items()]
-        parts.append("**3. First call** (fresh process, no persistent cache)\n\n" + C.md_table(
+        parts.append("**3. First call** (fresh process, no persistent cache)\n\n" + md_table(
             ["case", "import s", "first solve s", "XLA compilations", "XLA compile s", "second solve s"], rows))
     p = res.get("recompile")
     if p and "error" not in p:
         rows = [[r["call"], f"{1e3 * r['wall_s']:.1f}", r["xla_compilations"], f"{r['xla_compile_s']:.2f}"]
                 for r in p["calls"]]
-        parts.append(f"**4. Recompilation** (knife edge, s = {p['s']}, one process)\n\n" + C.md_table(
+        parts.append(f"**4. Recompilation** (knife edge, s = {p['s']}, one process)\n\n" + md_table(
             ["call", "wall ms", "XLA compilations", "XLA compile s"], rows))
     p = res.get("size")
     if p and "error" not in p:
         rows = [[r["n"], r["m"], r["us_per_step"], r["us_per_step_in_loop"], r["jacobians_per_step"],
                  r["newton_per_step"]] for r in p["rows"]]
         parts.append(f"**5. Size** (particle chain, s = 3, h = {p['h']}, N = {p['N']}; "
-                     f"{p.get('ratio_label', '')}: {_fx(p.get('ratio_last_over_first'), '.1f')})\n\n" + C.md_table(
+                     f"{p.get('ratio_label', '')}: {_fx(p.get('ratio_last_over_first'), '.1f')})\n\n" + md_table(
                          ["n", "m", "µs/step (solve)", "µs/step (loop)", "Jacobians/step", "Newton/step"], rows))
     p = res.get("threading")
     if p and "error" not in p:
-        rows = []
-        for lab, r in p["variants"].items():
-            if "error" in r:
-                rows.append([lab, "FAILED", None, None, None])
-                continue
-            rows.append([lab, r["knife"]["us_per_step"], r.get("knife_ratio_to_default"),
-                         (r.get("chain") or {}).get("us_per_step"), r.get("chain_ratio_to_default")])
-        parts.append("**6. XLA CPU threading** (subprocesses)\n\n" + C.md_table(
+        rows = [[lab, "FAILED", None, None, None] if "error" in r else
+                [lab, r["knife"]["us_per_step"], r.get("knife_ratio_to_default"),
+                 (r.get("chain") or {}).get("us_per_step"), r.get("chain_ratio_to_default")]
+                for lab, r in p["variants"].items()]
+        parts.append("**6. XLA CPU threading** (subprocesses)\n\n" + md_table(
             ["variant", f"knife edge s={p['config']['knife'][0]} µs/step", "vs default",
              f"chain n={p['config']['chain_n']} µs/step" if p["config"]["chain_n"] else "chain (not run)",
              "vs default"], rows))
     for name in PARTS:
         if isinstance(res.get(name), dict) and "error" in res[name]:
-            first = res[name]["error"].splitlines()[0]
-            parts.append(f"**{name}: FAILED** — {first}")
+            parts.append(f"**{name}: FAILED** — {res[name]['error'].splitlines()[0]}")
         for e in (res.get(name) or {}).get("errors", []):
             parts.append(f"**{name}: a measurement FAILED** — {e.splitlines()[0]}")
     return "\n\n".join(parts)
@@ -791,41 +686,34 @@ TITLES = {"c_limit": "1. C speed limit (knife edge)", "work_precision": "2. work
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description="lobattodae engine benchmark (issue #9)")
-    ap.add_argument("--quick", action="store_true", help="small N, fewer repeats and searches (smoke test, ~2 min)")
+    ap = cli.parser(__doc__, "quick", "pin_cpu", "watchdog", watchdog={"default": 3600.0},
+                    quick={"help": "small N, fewer repeats and searches (smoke test, ~2 min)"})
     ap.add_argument("--only", default=",".join(PARTS), help=f"comma-separated parts: {','.join(PARTS)}")
-    ap.add_argument("--watchdog", type=float, default=3600.0, help="abort with tracebacks after this many s (0: off)")
     a = ap.parse_args(argv)
     parts = [p.strip() for p in a.only.split(",") if p.strip()]
     unknown = [p for p in parts if p not in PARTS]
     if unknown:
         ap.error(f"unknown part(s) {unknown}; choose from {PARTS}")
-    if a.watchdog > 0:
-        import faulthandler
-
-        faulthandler.dump_traceback_later(a.watchdog, exit=True)
+    cli.start(a)
     cfg = config(a.quick)
     repeats = cfg["repeats"]
     start = time.perf_counter()
-    jnp.zeros(1).block_until_ready()
-    command = " ".join(shlex.quote(x) for x in [sys.executable] + sys.argv)
-    meta = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "command": command, "cwd": os.getcwd(),
-            "PYTHONPATH": os.environ.get("PYTHONPATH", ""), "quick": a.quick, "parts": parts,
-            "lobattodae_revision": source_revision(), "lobattodae_path": os.path.dirname(os.path.abspath(L.__file__)),
-            "lobattodae_version": getattr(L, "__version__", None), **C.machine_info(), "loadavg_start": C.loadavg()}
+    jnp.zeros(1).block_until_ready()  # JAX's backend starts before anything is timed
+    meta = run_meta(cwd=os.getcwd(), PYTHONPATH=os.environ.get("PYTHONPATH", ""), quick=a.quick, parts=parts,
+                    pin_cpu=a.pin_cpu)
+    machine = meta["machine"]
     log(f"# lobattodae engine benchmark (issue #9){' --quick' if a.quick else ''}")
-    log(f"command: {command}   (cwd {os.getcwd()})")
-    log(f"machine: {meta['platform']}, {meta['cpu']}, {meta['cpu_count']} CPUs ({meta['cpus_usable']} usable); "
-        f"python {meta['python']}, jax {meta['versions']['jax']}, diffrax {meta['versions']['diffrax']}, "
-        f"scipy {meta['versions']['scipy']}; XLA_FLAGS={meta['XLA_FLAGS']!r}")
+    log(f"command: {meta['command']}   (cwd {os.getcwd()})")
+    log(f"machine: {machine['platform']}, {machine['cpu']}, {machine['cpu_count']} CPUs ({machine['cpus_usable']} "
+        f"usable); python {machine['python']}, jax {machine['versions']['jax']}, diffrax "
+        f"{machine['versions']['diffrax']}, scipy {machine['versions']['scipy']}; XLA_FLAGS={machine['XLA_FLAGS']!r}")
     log(f"lobattodae {meta['lobattodae_revision']} from {meta['lobattodae_path']}")
     log(f"load average at start: {meta['loadavg_start']}  (2-core shared machine: compare ratios, not times)")
     res: dict = {"meta": meta}
     failed = []
     for name in parts:
         log(f"\n== {TITLES[name]} ==")
-        t0 = time.perf_counter()
-        load0 = C.loadavg()
+        t0, load0 = time.perf_counter(), loadavg()
         try:
             res[name] = RUNNERS[name](cfg, repeats)
         except Exception as exc:
@@ -833,40 +721,23 @@ def main(argv=None) -> int:
             res[name] = {"error": f"{type(exc).__name__}: {exc}\n{tb}"}
             failed.append(name)
             log(f"  PART {name} FAILED: {type(exc).__name__}: {exc}")
-            log("  (lobattodae's engine is being rewritten: a changed API or a broken working tree shows up here)")
             log("\n".join("    " + line for line in tb.strip().splitlines()[-5:]))
         if res[name].get("errors") and name not in failed:  # some measurements of the part failed
             failed.append(name)
-        res[name]["part_meta"] = {"seconds": time.perf_counter() - t0, "loadavg_start": load0,
-                                  "loadavg_end": C.loadavg()}
-    meta["loadavg_end"] = C.loadavg()
+        res[name]["part_meta"] = {"seconds": time.perf_counter() - t0, "loadavg_start": load0, "loadavg_end": loadavg()}
+    meta["loadavg_end"] = loadavg()
     meta["wall_seconds"] = time.perf_counter() - start
     meta["failed_parts"] = failed
 
-    os.makedirs(RESULTS_DIR, exist_ok=True)
-    path = os.path.join(RESULTS_DIR, f"engine{'_quick' if a.quick else ''}.json")
-    saved = res
-    if set(parts) != set(PARTS) and os.path.exists(path):  # a subset: update the saved file
-        try:
-            with open(path) as fh:
-                saved = json.load(fh)
-        except ValueError:
-            saved = {}
-        saved.setdefault("meta_parts", {})
-        for name in parts:
-            saved["meta_parts"][name] = meta
-            saved[name] = res[name]
-        saved["meta"] = saved.get("meta", meta)
-    with open(path, "w") as fh:
-        json.dump(C.jsonable(saved), fh, indent=1)
+    path = results_path(f"engine{'_quick' if a.quick else ''}.json")
+    write_json(with_parts(path, res, parts, PARTS), path)
 
     log("\n## Summary\n")
-    log(f"{meta['date']}, {meta['cpu']} ({meta['cpu_count']} CPUs), lobattodae {meta['lobattodae_revision']}, "
+    log(f"{meta['date']}, {machine['cpu']} ({machine['cpu_count']} CPUs), lobattodae {meta['lobattodae_revision']}, "
         f"load average {meta['loadavg_start']} -> {meta['loadavg_end']}, {meta['wall_seconds']:.0f} s"
         + (", QUICK (smoke test: small N, fewer repeats, T = 100 in part 2)" if a.quick else ""))
     log("")
     log(summary_markdown(res))
-    log(f"\nsaved {path}")
     if failed:
         log(f"FAILED parts: {', '.join(failed)}")
     return 1 if failed else 0

@@ -22,20 +22,13 @@ shard over fewer devices (see ``lobattodae._ensemble._guard_cpu_pool``).
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import subprocess
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-
-from _common import loadavg, machine_info  # noqa: E402
-
-#: Marks the child's result line on stdout (the rest is free for warnings).
-_MARK = "ENSEMBLE_SHARDED "
+from lib import cli
+from lib.output import RESULTS, child_env, child_result, loadavg, print_result, run_meta, write_json
+from lib.timing import best_of
 
 
 def child(ns) -> None:
@@ -44,17 +37,17 @@ def child(ns) -> None:
     import numpy as np
 
     import lobattodae as L
-    from ensemble import _consistent_batch
+    from lib.problems import consistent_batch
     from lobattodae.examples import get_example
 
     platform = jax.default_backend()
     devices = jax.local_devices()[: ns.child]
     if len(devices) < ns.child:
-        print(_MARK + json.dumps({"devices": ns.child, "skipped": f"only {len(devices)} {platform} device(s)"}))
+        print_result({"devices": ns.child, "skipped": f"only {len(devices)} {platform} device(s)"})
         return
     ex = get_example(ns.example)
     method = L.LobattoIIIAIIIB(stages=ns.stages)
-    q0, p0, lam0 = (np.asarray(x) for x in _consistent_batch(ex, ns.batch))
+    q0, p0, lam0 = (np.asarray(x) for x in consistent_batch(ex, ns.batch))
 
     def run():
         return L.ensemble(ex.problem, method, q0, p0, lam0, ex.args, h=ns.h, n_steps=ns.steps, devices=devices)
@@ -62,41 +55,29 @@ def child(ns) -> None:
     t = time.perf_counter()
     first = run()
     compile_and_run = time.perf_counter() - t
-    times, cpu = [], []
-    for _ in range(ns.repeats):
-        t, c = time.perf_counter(), time.process_time()
-        result = run()
-        times.append(time.perf_counter() - t)
-        cpu.append(time.process_time() - c)
-    best = int(np.argmin(times))
+    tm = best_of(run, ns.repeats)
+    result = tm.result
     row = {
         "devices": ns.child, "device_kind": devices[0].device_kind, "platform": platform,
-        "compile_and_first_run_s": compile_and_run, "times_s": times, "best_s": times[best],
-        "cpu_s_of_best": cpu[best], "cores_used": cpu[best] / times[best],
-        "traj_steps_per_s": ns.batch * ns.steps / min(times),
+        "compile_and_first_run_s": compile_and_run, "times_s": tm.times, "best_s": tm.best,
+        "cpu_s_of_best": tm.cpu, "cores_used": tm.cpu / tm.best, "traj_steps_per_s": ns.batch * ns.steps / tm.best,
         "successful": int(np.count_nonzero(result.status == 0)),
         "reproducible": bool(np.array_equal(first.q, result.q)),
     }
     plain = jax.jit(jax.vmap(lambda q, p, lam: L.integrate(ex.problem, method, 0.0, ns.h, ns.steps, q, p, lam,
                                                            ex.args).q[-1]))
     if ns.child == 1:
-        plain(q0, p0, lam0).block_until_ready()
-        vmap_times = []
-        for _ in range(ns.repeats):
-            t = time.perf_counter()
-            ref = np.asarray(plain(q0, p0, lam0))
-            vmap_times.append(time.perf_counter() - t)
-        row["vmap_best_s"] = min(vmap_times)
+        tv = best_of(lambda: np.asarray(plain(q0, p0, lam0)), ns.repeats, first=True)
+        ref, row["vmap_best_s"] = tv.result, tv.best
     else:
         with jax.default_device(devices[0]):
             ref = np.asarray(plain(q0, p0, lam0))
     row["max_abs_diff_to_vmap"] = float(np.max(np.abs(result.q - ref)))
-    print(_MARK + json.dumps(row), flush=True)
+    print_result(row)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="B = 64, N = 100, 3 repeats")
+    ap = cli.parser(__doc__, "quick", quick={"help": "B = 64, N = 100, 3 repeats"})
     ap.add_argument("--devices", type=int, nargs="+", default=[1, 2, 4])
     ap.add_argument("--example", default="knife-edge")
     ap.add_argument("--stages", type=int, default=3)
@@ -105,8 +86,8 @@ def main() -> None:
     ap.add_argument("--h", type=float, default=0.01)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--gpu", action="store_true", help="use the GPUs (default: forced CPU devices)")
-    ap.add_argument("--out", default=os.path.join(HERE, "results"))
-    ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--out", default=RESULTS, help="the directory of the JSON")
+    ap.add_argument("--child", type=int, default=None, help="(internal) this many devices, in this process")
     ns = ap.parse_args()
     ns.batch = ns.batch or (64 if ns.quick else 1024)
     ns.steps = ns.steps or (100 if ns.quick else 500)
@@ -114,29 +95,23 @@ def main() -> None:
         child(ns)
         return
 
-    meta = {"date": time.strftime("%Y-%m-%d"), "machine": machine_info(), "loadavg_start": loadavg(),
-            "command": " ".join([os.path.relpath(sys.executable), *sys.argv]),
-            "example": ns.example, "stages": ns.stages, "batch": ns.batch, "steps": ns.steps, "h": ns.h,
-            "repeats": ns.repeats, "NPROC": None if ns.gpu else 2 * max(ns.devices)}
+    meta = run_meta(example=ns.example, stages=ns.stages, batch=ns.batch, steps=ns.steps, h=ns.h, repeats=ns.repeats,
+                    NPROC=None if ns.gpu else 2 * max(ns.devices))
     rows = []
     for d in ns.devices:
-        env = dict(os.environ)
         if ns.gpu:
-            env.pop("JAX_PLATFORMS", None)
-        else:
-            env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={d}").strip()
-            env["JAX_PLATFORMS"] = "cpu"
-            env["NPROC"] = str(2 * max(ns.devices))
-            env.pop("PJRT_NPROC", None)  # it would take precedence over NPROC
-        args = [sys.executable, os.path.abspath(__file__), "--child", str(d), "--example", ns.example,
-                "--stages", str(ns.stages), "--batch", str(ns.batch), "--steps", str(ns.steps), "--h", str(ns.h),
-                "--repeats", str(ns.repeats)]
-        proc = subprocess.run(args, env=env, capture_output=True, text=True)
-        lines = [line for line in proc.stdout.splitlines() if line.startswith(_MARK)]
-        if proc.returncode != 0 or not lines:
-            sys.exit(f"the process for {d} device(s) failed:\n{proc.stderr[-3000:]}")
-        rows.append(json.loads(lines[-1][len(_MARK):]))
-        print(f"{d} device(s): {rows[-1]}", flush=True)
+            env = child_env(no_cache=False, JAX_PLATFORMS=None)
+        else:  # PJRT_NPROC would take precedence over NPROC
+            xla = (os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={d}").strip()
+            env = child_env(no_cache=False, XLA_FLAGS=xla, JAX_PLATFORMS="cpu", NPROC=str(2 * max(ns.devices)),
+                            PJRT_NPROC=None)
+        r = child_result([sys.executable, os.path.abspath(__file__), "--child", str(d), "--example", ns.example,
+                          "--stages", str(ns.stages), "--batch", str(ns.batch), "--steps", str(ns.steps), "--h",
+                          str(ns.h), "--repeats", str(ns.repeats)], env)
+        if "error" in r:
+            sys.exit(f"the process for {d} device(s) failed:\n{r['error']}")
+        rows.append(r)
+        print(f"{d} device(s): {r}", flush=True)
     meta["loadavg_end"] = loadavg()
     done = [r for r in rows if "skipped" not in r]
     base = next((r for r in done if r["devices"] == 1), None) or (done[0] if done else None)
@@ -158,11 +133,8 @@ def main() -> None:
         print(f"\nplain jax.vmap(integrate) on 1 device: {base['vmap_best_s']:.3f} s "
               f"({ns.batch * ns.steps / base['vmap_best_s']:.3e} trajectory-steps/s; ensemble/vmap time "
               f"{base['best_s'] / base['vmap_best_s']:.2f})")
-    os.makedirs(ns.out, exist_ok=True)
-    path = os.path.join(ns.out, f"ensemble_sharded{'_gpu' if ns.gpu else ''}{'_quick' if ns.quick else ''}.json")
-    with open(path, "w") as fh:
-        json.dump({"meta": meta, "rows": rows}, fh, indent=2)
-    print(f"wrote {path}")
+    write_json({"meta": meta, "rows": rows},
+               os.path.join(ns.out, f"ensemble_sharded{'_gpu' if ns.gpu else ''}{'_quick' if ns.quick else ''}.json"))
 
 
 if __name__ == "__main__":

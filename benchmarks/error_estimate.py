@@ -36,24 +36,19 @@ loop per example and s).
 
 from __future__ import annotations
 
-import argparse
 import functools
 import math
-import os
-import sys
 import time
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import _common as C  # noqa: E402
+import lobattodae as L
+from lib import cli
+from lib.output import finish, log, results_path, run_meta
+from lobattodae.examples import get_example
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import lobattodae as L  # noqa: E402, N812
-from lobattodae.examples import get_example  # noqa: E402
-
-RESULTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 EXAMPLES = ("knife-edge", "sleigh", "falling-disk")
 STAGES = (2, 3, 4, 5)
 #: The exact start point of the one-step study (a generic point of each example's motion).
@@ -169,33 +164,33 @@ def _fmt(x, spec=".3f"):
 
 
 def print_local(name: str, res: dict) -> None:
-    C.log(f"\n== {name}: one step from the exact point t0 = {T_START}; "
-          "ratios ‖est‖/‖δ_emb‖ (‖est‖/‖δ_step‖)")
-    C.log(f"{'h':>8} | " + " | ".join(f"{'s=' + str(s):^22}" for s in res))
+    log(f"\n== {name}: one step from the exact point t0 = {T_START}; "
+        "ratios ‖est‖/‖δ_emb‖ (‖est‖/‖δ_step‖)")
+    log(f"{'h':>8} | " + " | ".join(f"{'s=' + str(s):^22}" for s in res))
     hs = next(iter(res.values()))["h"]
     for i in range(0, len(hs), 2):
         cells = []
         for s, r in res.items():
             emb, step = r["ratio_est_over_embedded"][i], r["ratio_est_over_step"][i]
             cells.append(f"{_fmt(emb, '.4f'):>9} ({_fmt(step, '.2e'):>9})")
-        C.log(f"{hs[i]:8.4f} | " + " | ".join(f"{c:^22}" for c in cells))
-    C.log(f"{'slopes':>8} | est, δ_emb, δ_step (expected s, s, 2s-1); "
-          f"with λ_n off by {LAM_OFFSET:g}: Δest, Δstep")
+        log(f"{hs[i]:8.4f} | " + " | ".join(f"{c:^22}" for c in cells))
+    log(f"{'slopes':>8} | est, δ_emb, δ_step (expected s, s, 2s-1); "
+        f"with λ_n off by {LAM_OFFSET:g}: Δest, Δstep")
     for s, r in res.items():
         polluted = np.asarray(r["ratio_est_lam_offset_over_embedded"])
         last = int(np.flatnonzero(np.isfinite(polluted))[-1])  # the smallest h above the plateau
-        C.log(f"{'s=' + str(s):>8} | {_fmt(r['slope_est'], '.2f')}, {_fmt(r['slope_embedded'], '.2f')}, "
-              f"{_fmt(r['slope_step'], '.2f')} | Δest {_fmt(r['slope_est_change'], '.2f')}, "
-              f"Δstep {_fmt(r['slope_step_change'], '.2f')}; ratio ‖est‖/‖δ_emb‖ with λ off, "
-              f"h = {hs[last]:.4f}: {_fmt(polluted[last], '.3g')}")
+        log(f"{'s=' + str(s):>8} | {_fmt(r['slope_est'], '.2f')}, {_fmt(r['slope_embedded'], '.2f')}, "
+            f"{_fmt(r['slope_step'], '.2f')} | Δest {_fmt(r['slope_est_change'], '.2f')}, "
+            f"Δstep {_fmt(r['slope_step_change'], '.2f')}; ratio ‖est‖/‖δ_emb‖ with λ off, "
+            f"h = {hs[last]:.4f}: {_fmt(polluted[last], '.3g')}")
 
 
 def print_proportionality(name: str, res: dict) -> None:
-    C.log(f"\n== {name}: adaptive solve on [0, {T_END:g}], rtol = atol; global error / rtol, (steps)")
+    log(f"\n== {name}: adaptive solve on [0, {T_END:g}], rtol = atol; global error / rtol, (steps)")
     for s, r in res.items():
         cells = " ".join(f"{x['error_over_rtol']:.2g}({x['n_steps']})" for x in r["runs"])
-        C.log(f"s={s}: slope {r['slope']:.2f}; err/rtol in [{r['error_over_rtol_min']:.2g}, "
-              f"{r['error_over_rtol_max']:.2g}], geomean {r['error_over_rtol_geomean']:.2g} | {cells}")
+        log(f"s={s}: slope {r['slope']:.2f}; err/rtol in [{r['error_over_rtol_min']:.2g}, "
+            f"{r['error_over_rtol_max']:.2g}], geomean {r['error_over_rtol_geomean']:.2g} | {cells}")
 
 
 def calibration(prop: dict) -> dict:
@@ -213,9 +208,7 @@ def calibration(prop: dict) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true",
-                    help="the sleigh only, fewer step sizes and tolerances (~2 min)")
+    ap = cli.parser(__doc__, "quick", quick={"help": "the sleigh only, fewer step sizes and tolerances (~2 min)"})
     ap.add_argument("--examples", nargs="*", default=None, choices=EXAMPLES,
                     help="a subset of the examples (default: all three; the sleigh with --quick)")
     ap.add_argument("--parts", nargs="*", default=["local", "proportionality"], choices=["local", "proportionality"])
@@ -225,8 +218,7 @@ def main() -> None:
     if a.examples is None:
         a.examples = ["sleigh"] if a.quick else list(EXAMPLES)
     hs = H_MAX * 2.0 ** (-np.arange(N_H_QUICK if a.quick else N_H) / 2.0)
-    out = {"date": time.strftime("%Y-%m-%d"), "command": " ".join(sys.argv), "machine": C.machine_info(),
-           "loadavg_start": C.loadavg(), "settings": {
+    out = {**run_meta(), "settings": {
                "t_start": T_START, "h": hs, "plateau_rel": PLATEAU_REL, "n_fit": N_FIT, "lam_offset": LAM_OFFSET,
                "t_end": T_END, "rtols": RTOLS}, "local": {}, "proportionality": {}}
     start = time.perf_counter()
@@ -245,14 +237,11 @@ def main() -> None:
             out["proportionality"][name] = res
             print_proportionality(name, res)
         out["calibration"] = calibration(out["proportionality"])
-        C.log("\n== calibration: geometric mean of global error / rtol over the examples")
+        log("\n== calibration: geometric mean of global error / rtol over the examples")
         for s, c in out["calibration"].items():
-            C.log(f"s={s}: {c['error_over_rtol_geomean']:.3g} (c_tol that would make it 1: "
-                  f"{c['c_tol_for_unit_ratio']:.3g})")
-    out["wall_s"] = time.perf_counter() - start
-    out["loadavg_end"] = C.loadavg()
-    C.write_json(out, a.json or (None if a.quick else os.path.join(RESULTS_DIR, "error_estimate.json")))
-    C.log(f"({out['wall_s']:.0f} s)")
+            log(f"s={s}: {c['error_over_rtol_geomean']:.3g} (c_tol that would make it 1: "
+                f"{c['c_tol_for_unit_ratio']:.3g})")
+    finish(out, a.json or (None if a.quick else results_path("error_estimate.json")), start)
 
 
 if __name__ == "__main__":

@@ -15,8 +15,6 @@ Writes ``benchmarks/results/faithfulness.json`` and ``faithfulness.png``.
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import pathlib
 import sys
@@ -24,10 +22,11 @@ import time
 
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # the tests import this file as benchmarks.*
 
 import lobattodae as L  # noqa: E402
+from benchmarks.lib import cli  # noqa: E402
+from benchmarks.lib.output import log, pyplot, results_path, save_figure, write_json  # noqa: E402
 from benchmarks.testset import PROBLEMS, error  # noqa: E402
 
 #: The contract of issue #25.
@@ -92,21 +91,16 @@ def grid(problems, stages, rtols) -> tuple[list[dict], dict]:
                     continue
                 r = run_one(entry, s, rtol)
                 mine.append(r)
-                print(f"{name:>18} s={s} rtol={rtol:7.0e} err={r['error']:9.2e} ratio={r['ratio']:8.3f} "
-                      f"steps={r['n_steps']:7d} rej={r['n_rejected']:4d} {r['seconds']:6.2f}s status={r['status']}",
-                      flush=True)
+                log(f"{name:>18} s={s} rtol={rtol:7.0e} err={r['error']:9.2e} ratio={r['ratio']:8.3f} "
+                    f"steps={r['n_steps']:7d} rej={r['n_rejected']:4d} {r['seconds']:6.2f}s status={r['status']}")
             rows += mine
             slopes[f"{name} s={s}"] = slope(mine, entry.ref_accuracy)
-            print(f"{name:>18} s={s} slope {slopes[f'{name} s={s}']:.2f}", flush=True)
+            log(f"{name:>18} s={s} slope {slopes[f'{name} s={s}']:.2f}")
     return rows, slopes
 
 
 def plot(rows, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     names = sorted({r["problem"] for r in rows})
     ncol = min(4, len(names))
     nrow = -(-len(names) // ncol)
@@ -127,27 +121,24 @@ def plot(rows, path):
         ax.set_xlabel("rtol = atol")
         ax.set_ylabel("error / (1 + |y|) at the reference times")
         ax.legend(fontsize=7)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = cli.parser(__doc__, "pin_cpu", "cpu_threads", cpu_threads={"default": 1})
     ap.add_argument("--problems", nargs="+", default=sorted(PROBLEMS))
     ap.add_argument("--stages", nargs="+", type=int, default=list(STAGES))
     ap.add_argument("--rtols", nargs="+", type=float, default=list(RTOLS))
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "faithfulness"))
-    ns = ap.parse_args(argv)
-    L.set_cpu_threads(1)
+    ap.add_argument("--out", default=results_path("faithfulness"), help="the results' path without suffix")
+    ns = cli.start(ap.parse_args(argv))
     rows, slopes = grid(ns.problems, ns.stages, ns.rtols)
     bad = verdict(rows)
     bad += [f"{k}: slope {v:.2f}" for k, v in slopes.items() if math.isfinite(v) and not SLOPE[0] <= v <= SLOPE[1]]
-    out = pathlib.Path(ns.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps({"rows": rows, "slopes": slopes, "violations": bad}, indent=1))
-    plot(rows, out.with_suffix(".png"))
-    print(f"\n{len(rows)} runs, {len(bad)} violations")
+    write_json({"rows": rows, "slopes": slopes, "violations": bad}, ns.out + ".json")
+    plot(rows, ns.out + ".png")
+    log(f"\n{len(rows)} runs, {len(bad)} violations")
     for line in bad:
-        print("  " + line)
+        log("  " + line)
     return 0 if not bad else 1
 
 

@@ -20,22 +20,14 @@ Writes ``benchmarks/results/generated[_quick].json``.
 
 from __future__ import annotations
 
-import argparse
-import datetime
-import os
-import sys
-import time
-
+import jax
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _common import jsonable, loadavg, log, machine_info, md_table, write_json  # noqa: E402
-
-import jax  # noqa: E402
-import lobattodae as L  # noqa: E402, N812
-from lobattodae import examples, mechanics  # noqa: E402
-
-RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+import lobattodae as L
+from lib import cli
+from lib.output import loadavg, log, md_table, results_path, run_meta, write_json
+from lib.timing import best_of
+from lobattodae import examples, mechanics
 
 
 def _pairs():
@@ -49,11 +41,7 @@ def _pairs():
 
 def _runner(problem, method, h, n_steps):
     run = jax.jit(lambda q0, p0, lam0, args: L.integrate(problem, method, 0.0, h, n_steps, q0, p0, lam0, args).q[-1])
-
-    def call(q0, p0, lam0, args):
-        return np.asarray(jax.block_until_ready(run(q0, p0, lam0, args)))
-
-    return call
+    return lambda q0, p0, lam0, args: np.asarray(jax.block_until_ready(run(q0, p0, lam0, args)))
 
 
 def measure(stages, n_steps, h, repeats):
@@ -62,18 +50,14 @@ def measure(stages, n_steps, h, repeats):
         args = model.args(**ex.args._asdict())
         for s in stages:
             method = L.LobattoIIIAIIIB(stages=s)
-            hand = _runner(ex.problem, method, h, n_steps)
-            gen = _runner(model.problem, method, h, n_steps)
-            inputs_hand = (ex.q0, ex.p0, ex.lam0, ex.args)
-            inputs_gen = (ex.q0, ex.p0, ex.lam0, args)
-            q_hand, q_gen = hand(*inputs_hand), gen(*inputs_gen)  # compile, and check they agree
-            agree = float(np.max(np.abs(q_hand - q_gen)))
+            calls = {"hand": (_runner(ex.problem, method, h, n_steps), (ex.q0, ex.p0, ex.lam0, ex.args)),
+                     "gen": (_runner(model.problem, method, h, n_steps), (ex.q0, ex.p0, ex.lam0, args))}
+            q = {key: fn(*inputs) for key, (fn, inputs) in calls.items()}  # compile, and check they agree
+            agree = float(np.max(np.abs(q["hand"] - q["gen"])))
             best = {"hand": np.inf, "gen": np.inf}
-            for _ in range(repeats):
-                for key, fn, inputs in (("hand", hand, inputs_hand), ("gen", gen, inputs_gen)):
-                    t0 = time.perf_counter()
-                    fn(*inputs)
-                    best[key] = min(best[key], time.perf_counter() - t0)
+            for _ in range(repeats):  # interleaved: both under the same load
+                for key, (fn, inputs) in calls.items():
+                    best[key] = min(best[key], best_of(lambda fn=fn, inputs=inputs: fn(*inputs), 1).best)
             row = dict(problem=name, s=s, n_steps=n_steps, h=h, hand_us=best["hand"] / n_steps * 1e6,
                        gen_us=best["gen"] / n_steps * 1e6, ratio=best["gen"] / best["hand"], final_q_diff=agree)
             log(f"{name:13s} s={s}: hand-written {row['hand_us']:.1f} µs/step, generated {row['gen_us']:.1f} µs/step, "
@@ -83,22 +67,19 @@ def measure(stages, n_steps, h, repeats):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="2000 steps, best of 3")
+    parser = cli.parser(__doc__, "quick", "pin_cpu", quick={"help": "2000 steps, best of 3"})
     parser.add_argument("--stages", type=int, nargs="+", default=[3, 5])
     parser.add_argument("--h", type=float, default=0.01)
     parser.add_argument("--repeats", type=int, default=None)
-    opts = parser.parse_args(argv)
+    opts = cli.start(parser.parse_args(argv))
     n_steps = 2000 if opts.quick else 20000
     repeats = opts.repeats or (3 if opts.quick else 7)
-    start = loadavg()
+    meta = run_meta(repeats=repeats, pin_cpu=opts.pin_cpu)
     rows = measure(opts.stages, n_steps, opts.h, repeats)
     log("\n" + md_table(["problem", "s", "hand-written µs/step", "generated µs/step", "generated / hand-written"],
                         [[r["problem"], r["s"], r["hand_us"], r["gen_us"], r["ratio"]] for r in rows]))
-    meta = dict(date=datetime.datetime.now().isoformat(timespec="seconds"), machine=machine_info(),
-                loadavg_start=start, loadavg_end=loadavg(), command=" ".join(sys.argv), repeats=repeats)
-    write_json(jsonable(dict(meta=meta, rows=rows)),
-               os.path.join(RESULTS, f"generated{'_quick' if opts.quick else ''}.json"))
+    write_json(dict(meta={**meta, "loadavg_end": loadavg()}, rows=rows),
+               results_path(f"generated{'_quick' if opts.quick else ''}.json"))
 
 
 if __name__ == "__main__":

@@ -15,31 +15,17 @@ gradient (``memory_analysis().temp_size_in_bytes``). Two settings: the default
 
 from __future__ import annotations
 
-import argparse
-import json
-import math
-import os
-import platform
-import time
-
 import jax
 import jax.numpy as jnp
 
 import lobattodae as L
+from lib import cli
+from lib.output import results_path, run_meta, write_json
+from lib.timing import best_of
 from lobattodae._integrate import resolve_checkpoints
 from lobattodae.examples import get_example
 
 CASES = (("falling-disk-general", 3, 0.01), ("falling-disk-general", 4, 0.02), ("sleigh", 3, 0.01), ("sleigh", 5, 0.05))
-
-
-def _best(fn, x, repeats):
-    jax.block_until_ready(fn(x))
-    best = math.inf
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn(x))
-        best = min(best, time.perf_counter() - t)
-    return best
 
 
 def measure(name: str, stages: int, h: float, n_steps: int, repeats: int) -> dict:
@@ -59,10 +45,8 @@ def measure(name: str, stages: int, h: float, n_steps: int, repeats: int) -> dic
     forward_all = jax.jit(lambda x: loss(x, None))
     grad = jax.jit(jax.grad(loss))
     grad_all = jax.jit(jax.grad(lambda x: loss(x, None)))
-    t_fwd = _best(forward, p, repeats)
-    t_fwd_all = _best(forward_all, p, repeats)
-    t_grad = _best(grad, p, repeats)
-    t_all = _best(grad_all, p, repeats)
+    t_fwd, t_fwd_all, t_grad, t_all = (best_of(lambda fn=fn: fn(p), repeats, first=True).best
+                                       for fn in (forward, forward_all, grad, grad_all))
     mem = grad.lower(p).compile().memory_analysis().temp_size_in_bytes
     mem_all = grad_all.lower(p).compile().memory_analysis().temp_size_in_bytes
     row = dict(example=name, stages=stages, h=h, n_steps=n_steps, segments=segments,
@@ -77,19 +61,14 @@ def measure(name: str, stages: int, h: float, n_steps: int, repeats: int) -> dic
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="short runs (smoke test)")
+    ap = cli.parser(__doc__, "quick", "pin_cpu", quick={"help": "short runs (smoke test)"})
     ap.add_argument("--repeats", type=int, default=3)
-    ns = ap.parse_args()
+    ns = cli.start(ap.parse_args())
     n_steps = 200 if ns.quick else 2000
+    meta = run_meta(pin_cpu=ns.pin_cpu)
     rows = [measure(name, s, h, n_steps, ns.repeats) for name, s, h in (CASES[:1] if ns.quick else CASES)]
-    out = dict(date=time.strftime("%Y-%m-%d %H:%M"), machine=platform.platform(), cpus=os.cpu_count(),
-               jax=jax.__version__, device=str(jax.devices()[0]), rows=rows)
     if not ns.quick:
-        path = os.path.join(os.path.dirname(__file__), "results", "gradients.json")
-        with open(path, "w") as fh:
-            json.dump(out, fh, indent=1)
-        print("wrote", path)
+        write_json(dict(meta, device=str(jax.devices()[0]), rows=rows), results_path("gradients.json"))
 
 
 if __name__ == "__main__":

@@ -10,10 +10,10 @@ process, which reports
 * its peak resident memory (``resource.getrusage(RUSAGE_SELF).ru_maxrss``), after compiling
   the loop on a short run (``warm``) and after the long run (``peak``);
 * the wall time of the long run, and the part of it spent in checkpoint saves;
-* the bytes its checkpoints wrote (every file write of ``lobattodae._io.atomic.write_npz`` is counted,
-  main files and row segments apart; ``/proc/self/io`` ``wchar`` as a cross-check), the files
-  left on disk, and what the single-file format of version 3 would have written (each save
-  rewriting every row so far: Σ over saves of main file + rows so far);
+* the bytes its checkpoints wrote (every file write of ``lobattodae._io.atomic.write_npz`` is
+  counted, main files and row segments apart; ``/proc/self/io`` ``wchar`` as a cross-check),
+  the files left on disk, and what the single-file format of version 3 would have written
+  (each save rewriting every row so far: Σ over saves of main file + rows so far);
 * that ``resume=True`` on the finished checkpoint gives the same rows, bit for bit.
 
 From the measured run it projects the 10⁸-step figures: time, bytes and segment files scale
@@ -33,23 +33,20 @@ repository root::
 
 from __future__ import annotations
 
-import argparse
-import datetime
 import json
 import os
 import resource
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import _common as C  # noqa: E402
+from lib import cli
+from lib.output import child_env, child_result, loadavg, log, md_table, print_result, results_path, run_meta, \
+    write_json
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-JSON_PATH = os.path.join(HERE, "results", "longrun_memory.json")
-QUICK_JSON_PATH = os.path.join(HERE, "results", "longrun_memory_quick.json")
+JSON_PATH = results_path("longrun_memory.json")
+QUICK_JSON_PATH = results_path("longrun_memory_quick.json")
 
 #: The step size (t1 = steps × H) and the output selection of every run.
 H = 0.01
@@ -208,55 +205,48 @@ def table(results: dict) -> str:
                 ("bit for bit" if r["resume_bit_for_bit"] else "DIFFERS") + f", {r['resume_s']:.1f} s"
                 if label == "measured" and r["every"] else "–",
             ])
-    return C.md_table(headers, rows)
+    return md_table(headers, rows)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="10⁶ steps")
+    ap = cli.parser(__doc__, "quick", quick={"help": "10⁶ steps"})
     ap.add_argument("--steps", type=int, default=None, help="steps per run (default 10⁷; --quick: 10⁶)")
     ap.add_argument("--every", type=int, nargs="+", default=[100_000, 10_000, 0],
                     help="steps between checkpoints, one run each (0: no checkpoint; default: 100000 10000 0)")
     ap.add_argument("--stages", type=int, default=2)
     ap.add_argument("--dir", default=None, help="where the checkpoints go (default: a temporary directory)")
-    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--child", action="store_true", help="(internal) one configuration, in this process")
     a = ap.parse_args()
     steps = a.steps or (10**6 if a.quick else 10**7)
     if a.child:
-        print("RESULT " + json.dumps(child(steps, a.every[0], a.stages, a.dir)), flush=True)
+        print_result(child(steps, a.every[0], a.stages, a.dir))
         return
-    results = {"meta": {"date": datetime.datetime.now().strftime("%Y-%m-%d %H:%M"),
-                        "command": " ".join(["benchmarks/longrun_memory.py"] + sys.argv[1:]),
-                        "machine": C.machine_info(), "loadavg_start": C.loadavg()},
-               "steps": steps, "h": H, "save_every": SAVE_EVERY, "stages": a.stages, "runs": []}
+    results = {"meta": run_meta(), "steps": steps, "h": H, "save_every": SAVE_EVERY, "stages": a.stages, "runs": []}
     directory = a.dir or tempfile.mkdtemp(prefix="longrun-")
     os.makedirs(directory, exist_ok=True)
     try:
         for every in a.every:
-            C.log(f"{steps:.0e} steps, s = {a.stages}, checkpoint_every = {every or 'none'} ...")
-            cmd = [sys.executable, os.path.abspath(__file__), "--child", "--steps", str(steps), "--every", str(every),
-                   "--stages", str(a.stages), "--dir", directory]
-            proc = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, JAX_PLATFORMS="cpu"))
-            lines = [x for x in proc.stdout.splitlines() if x.startswith("RESULT ")]
-            if proc.returncode != 0 or not lines:
-                sys.stderr.write(proc.stderr[-4000:])
-                raise SystemExit(f"the run with checkpoint_every={every} failed (exit code {proc.returncode})")
-            r = json.loads(lines[-1][len("RESULT "):])
+            log(f"{steps:.0e} steps, s = {a.stages}, checkpoint_every = {every or 'none'} ...")
+            r = child_result([sys.executable, os.path.abspath(__file__), "--child", "--steps", str(steps), "--every",
+                              str(every), "--stages", str(a.stages), "--dir", directory],
+                             child_env(no_cache=False, JAX_PLATFORMS="cpu"), timeout=24 * 3600.0)
+            if "error" in r:
+                raise SystemExit(f"the run with checkpoint_every={every} failed: {r['error']}")
             r["projected"] = project(r)
             results["runs"].append(r)
-            C.log(f"  {r['wall_s']:.0f} s, peak RSS {_mib(r['rss_peak_bytes'])} (after compiling "
-                  f"{_mib(r['rss_warm_bytes'])}), checkpoints wrote {_size(r.get('written_bytes'))}")
+            log(f"  {r['wall_s']:.0f} s, peak RSS {_mib(r['rss_peak_bytes'])} (after compiling "
+                f"{_mib(r['rss_warm_bytes'])}), checkpoints wrote {_size(r.get('written_bytes'))}")
     finally:
         if a.dir is None:
             shutil.rmtree(directory, ignore_errors=True)
-    results["meta"]["loadavg_end"] = C.loadavg()
-    C.log("\n" + table(results))
+    results["meta"]["loadavg_end"] = loadavg()
+    log("\n" + table(results))
     fits = [r["projected"]["rss_peak_bytes"] < GIB and r["projected"].get("written_bytes", 0) < GIB
             for r in results["runs"]]
-    C.log(f"\n10⁸ steps keeping every {SAVE_EVERY}th point within 1 GiB (memory and bytes written): "
-          + ", ".join(f"checkpoint_every={r['every'] or 'none'}: {'yes' if ok else 'NO'}"
-                      for r, ok in zip(results["runs"], fits)))
-    C.write_json(results, QUICK_JSON_PATH if a.quick else JSON_PATH)
+    log(f"\n10⁸ steps keeping every {SAVE_EVERY}th point within 1 GiB (memory and bytes written): "
+        + ", ".join(f"checkpoint_every={r['every'] or 'none'}: {'yes' if ok else 'NO'}"
+                  for r, ok in zip(results["runs"], fits)))
+    write_json(results, QUICK_JSON_PATH if a.quick else JSON_PATH)
 
 
 if __name__ == "__main__":

@@ -24,33 +24,23 @@ Writes ``benchmarks/results/newton_refresh.json``.
 
 from __future__ import annotations
 
-import argparse
-import os
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-import _common as C  # noqa: E402
-
-RESULTS = os.path.join(HERE, "results", "newton_refresh.json")
+from lib import cli
+from lib.output import child_env, child_result, md_table, python_child, results_path, run_meta, write_json
 
 CHILD = r"""
-import json, sys, time
-import numpy as np
+import sys
 import jax
 import lobattodae as L
 from lobattodae import _newton
+from lib.output import print_result
+from lib.timing import best_of
 
 L.set_cpu_threads(1)
 _newton.REFRESH_PREDICTED, _newton.REFRESH_ITERATIONS = float(sys.argv[1]), int(sys.argv[2])
 from lobattodae.examples import get_example
-
-def best(f, k=5):
-    out = f(); ts = []
-    for _ in range(k):
-        t = time.perf_counter(); out = f(); ts.append(time.perf_counter() - t)
-    return min(ts), out
 
 res = {}
 for name, s, h, n in [("knife-edge", 5, 0.2, 5000), ("sleigh", 5, 1.0, 1000), ("falling-disk-general", 3, 0.05, 2000),
@@ -69,38 +59,41 @@ for name, s, h, n in [("knife-edge", 5, 0.2, 5000), ("sleigh", 5, 1.0, 1000), ("
         return jax.lax.fori_loop(0, n, body, (q, p, lam, st, 0, 0))
 
     f = jax.jit(loop)
-    t, out = best(lambda: jax.block_until_ready(f(ex.q0, ex.p0, ex.lam0)))
-    res[f"{name}, s = {s}, h = {h:g} (step loop)"] = {"s_per_step": t / n, "newton": float(out[4]) / n,
-                                                     "jacobians": float(out[5]) / n}
+    tm = best_of(lambda: f(ex.q0, ex.p0, ex.lam0), 5, first=True)
+    res[f"{name}, s = {s}, h = {h:g} (step loop)"] = {"s_per_step": tm.best / n, "newton": float(tm.result[4]) / n,
+                                                     "jacobians": float(tm.result[5]) / n}
 solves = [("sleigh", 5, (0.0, 1000.0), dict(rtol=1e-11, atol=1e-11)),
           ("falling-disk-general", 5, (0.0, 200.0), dict(rtol=1e-10, atol=1e-10)),
           ("particle", 3, (0.0, 6.0), dict(n_steps=2458))]
 for name, s, span, kw in solves:
     ex = get_example(name)
     m = L.LobattoIIIAIIIB(stages=s)
-    t, sol = best(lambda: L.solve(ex.problem, m, span, ex.q0, ex.p0, args=ex.args, lam0=ex.lam0,
-                                  save_every="final", **kw))
-    st = sol.stats
+    tm = best_of(lambda: L.solve(ex.problem, m, span, ex.q0, ex.p0, args=ex.args, lam0=ex.lam0, save_every="final",
+                                 **kw), 5, first=True)
+    st = tm.result.stats
     na = int(st["n_steps"]) + int(st.get("n_rejected", 0))
     res[f"{name}, s = {s}, solve {', '.join(f'{k} = {v:g}' for k, v in kw.items())}"] = {
-        "s_per_step": t / na, "newton": float(st["n_newton"]) / na, "jacobians": float(st["n_jacobians"]) / na,
-        "solve_s": t}
-print("RESULT " + json.dumps(res))
+        "s_per_step": tm.best / na, "newton": float(st["n_newton"]) / na, "jacobians": float(st["n_jacobians"]) / na,
+        "solve_s": tm.best}
+print_result(res)
 """
 
 
 def run_child(predicted: float, iterations: int) -> dict:
-    env = {k: v for k, v in os.environ.items() if k != "PJRT_NPROC"}
-    return C.child_result(CHILD, [str(predicted), str(iterations)], env)
+    r = child_result(python_child(CHILD, str(predicted), str(iterations)), child_env(no_cache=False, PJRT_NPROC=None))
+    if "error" in r:
+        raise SystemExit(f"the child process failed: {r['error']}")
+    return r
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = cli.parser(__doc__)
     ap.add_argument("--settings", nargs="+", default=["4,8", "8,12"], help="REFRESH_PREDICTED,REFRESH_ITERATIONS")
     ap.add_argument("--rounds", type=int, default=2)
     a = ap.parse_args(argv)
     settings = [(float(x.split(",")[0]), int(x.split(",")[1])) for x in a.settings]
     t0 = time.perf_counter()
+    meta = run_meta()
     rounds = {f"{p:g},{i}": [] for p, i in settings}
     for r in range(a.rounds):
         for p, i in settings:
@@ -117,8 +110,9 @@ def main(argv=None) -> int:
             row.append(f"{1e6 * v['s_per_step']:.1f} µs, {v['newton']:.2f} it, {v['jacobians']:.2f} J")
         row.append(f"{best[keys[0]][case]['s_per_step'] / best[keys[-1]][case]['s_per_step']:.2f}")
         rows.append(row)
-    print(C.md_table(["case (per step)"] + [f"({k})" for k in keys] + [f"({keys[0]}) / ({keys[-1]})"], rows))
-    C.save_run(RESULTS, "newton_refresh.py", t0, rounds=rounds, best=best)
+    print(md_table(["case (per step)"] + [f"({k})" for k in keys] + [f"({keys[0]}) / ({keys[-1]})"], rows))
+    write_json({**meta, "seconds": time.perf_counter() - t0, "rounds": rounds, "best": best},
+               results_path("newton_refresh.json"))
     return 0
 
 

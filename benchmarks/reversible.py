@@ -26,33 +26,25 @@ Prints tables; writes ``benchmarks/results/reversible.json`` and
 
 from __future__ import annotations
 
-import argparse
-import datetime
-import json
 import math
 import os
-import sys
 import time
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(__file__))
-import _common as C  # noqa: E402
+import lobattodae as L
+from lib import cli
+from lib.output import ROOT, loadavg, log, pyplot, read_json, results_path, run_meta, save_figure, write_json
+from lobattodae._problem import consistent_lambda, vector_field
+from lobattodae.examples import get_example
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-
-import lobattodae as L  # noqa: E402
-from lobattodae._problem import consistent_lambda, vector_field  # noqa: E402
-from lobattodae.examples import get_example  # noqa: E402
-
-HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.dirname(HERE)
-JSON_PATH = os.path.join(HERE, "results", "reversible.json")
+JSON_PATH = results_path("reversible.json")
 FIGURE_PATH = os.path.join(ROOT, "docs", "figures", "reversible-control.png")
 #: --quick writes here instead (the full results stay).
-QUICK_JSON_PATH = os.path.join(HERE, "results", "reversible_quick.json")
-QUICK_FIGURE_PATH = os.path.join(HERE, "results", "reversible_quick.png")
+QUICK_JSON_PATH = results_path("reversible_quick.json")
+QUICK_FIGURE_PATH = results_path("reversible_quick.png")
 
 #: The reversible control's first step (ε = FIRST_STEP·σ(y0)): mean step about 0.17.
 FIRST_STEP = 0.2
@@ -213,9 +205,9 @@ def long_runs(ex, s, n_target, cal, controls=CONTROLS):
             n_rev = sol.stats["n_steps"] if sol.success else n_target
         row.update(summarize(sol.t, energy(sol)))
         out[control] = row
-        C.log(f"  {ex.name:22s} s={s} {control:12s} {row['steps']:8d} steps  t_end {t_end:9.0f}  "
-              f"max|ΔH| first/last tenth {row['first_tenth']:.2e} / {row['last_tenth']:.2e}  "
-              f"exponent {_fmt(row['growth_exponent'], '.2f')}  {wall:6.1f} s  {'' if sol.success else sol.message}")
+        log(f"  {ex.name:22s} s={s} {control:12s} {row['steps']:8d} steps  t_end {t_end:9.0f}  "
+            f"max|ΔH| first/last tenth {row['first_tenth']:.2e} / {row['last_tenth']:.2e}  "
+            f"exponent {_fmt(row['growth_exponent'], '.2f')}  {wall:6.1f} s  {'' if sol.success else sol.message}")
     return out
 
 
@@ -256,30 +248,27 @@ def _fmt(x, spec=".2e"):
 
 def print_tables(results):
     for key, block in results["runs"].items():
-        C.log(f"\n### {key}: max |ΔH| per decade of time\n")
+        log(f"\n### {key}: max |ΔH| per decade of time\n")
         runs = block["runs"]
         first = next(iter(runs.values()))
         head = [f"[{a:g}, {b:g}]" for a, b in (d["t"] for d in first["per_decade"])]
-        C.log("| control | steps | " + " | ".join(head) + " | slope of ΔH(t) | growth exponent | wall |")
-        C.log("|---|---|" + "---|" * len(head) + "---|---|---|")
+        log("| control | steps | " + " | ".join(head) + " | slope of ΔH(t) | growth exponent | wall |")
+        log("|---|---|" + "---|" * len(head) + "---|---|---|")
         for control, r in runs.items():
             cells = " | ".join(_fmt(d["max_abs_dH"]) for d in r["per_decade"])
-            C.log(f"| {LABELS[control]} | {r['steps']:,} | {cells} | {r['drift_slope']:+.2e} | "
-                  f"{_fmt(r['growth_exponent'], '.2f')} | {r['wall_s']:.0f} s |")
+            log(f"| {LABELS[control]} | {r['steps']:,} | {cells} | {r['drift_slope']:+.2e} | "
+                f"{_fmt(r['growth_exponent'], '.2f')} | {r['wall_s']:.0f} s |")
     if results.get("density"):
-        C.log(f"\n### step densities at equal cost, s = {S_MAIN}, t ≤ {T_CALIBRATE:g} (contact)\n")
-        C.log("| run | steps | h min | h max | q error at t_end | max |ΔH| |")
-        C.log("|---|---|---|---|---|---|")
+        log(f"\n### step densities at equal cost, s = {S_MAIN}, t ≤ {T_CALIBRATE:g} (contact)\n")
+        log("| run | steps | h min | h max | q error at t_end | max |ΔH| |")
+        log("|---|---|---|---|---|---|")
         for r in results["density"]:
-            C.log(f"| {r['run']} | {r['steps']:,} | {r['h_min']:.3f} | {r['h_max']:.3f} | {r['q_error']:.2e} | "
-                  f"{r['max_abs_dH']:.2e} |")
+            log(f"| {r['run']} | {r['steps']:,} | {r['h_min']:.3f} | {r['h_max']:.3f} | {r['q_error']:.2e} | "
+                f"{r['max_abs_dH']:.2e} |")
 
 
 def plot(results, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     keys = list(results["runs"])
     problems = sorted({results["runs"][k]["problem"] for k in keys}, key=lambda p: p != "contact")
@@ -327,33 +316,24 @@ def plot(results, path):
                          fontsize=10)
     fig.suptitle("Energy error with variable steps: Hairer–Söderlind reversible control vs PI control", fontsize=11)
     fig.tight_layout()
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    C.log(f"\nfigure: {os.path.relpath(path, ROOT)}")
+    save_figure(fig, path)
 
 
 # -- main -------------------------------------------------------------------------------------
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="10⁴ steps, s = 3 only, no density study")
+    ap = cli.parser(__doc__, "quick", "replot", quick={"help": "10⁴ steps, s = 3 only, no density study"})
     ap.add_argument("--steps", type=int, default=100_000)
     ap.add_argument("--stages", type=int, nargs="+", default=[2, 3, 4])
     ap.add_argument("--million", action="store_true", help=f"also 10⁶ steps, s = {S_MAIN}, reversible problem")
-    ap.add_argument("--replot", action="store_true")
     a = ap.parse_args()
     if a.replot:
-        with open(JSON_PATH) as fh:
-            results = json.load(fh)
+        results = read_json(JSON_PATH)
         print_tables(results)
         plot(results, FIGURE_PATH)
         return
     steps = 10_000 if a.quick else a.steps
     stages = [S_MAIN] if a.quick else a.stages
-    results = {"meta": {"date": datetime.date.today().isoformat(), "command": " ".join(["benchmarks/reversible.py"]
-                                                                                       + sys.argv[1:]),
-                        "uname": " ".join(os.uname()), "nproc": os.cpu_count(), "machine": C.machine_info(),
-                        "loadavg_start": C.loadavg()},
+    results = {"meta": run_meta(),
                "quick": a.quick, "steps_target": steps, "first_step": FIRST_STEP, "t_calibrate": T_CALIBRATE,
                "runs": {}}
     started = time.perf_counter()
@@ -363,18 +343,18 @@ def main() -> None:
     for name, s, n in plan:
         ex = get_example(name)
         cal = calibrate(ex, s)
-        C.log(f"{name}, s = {s}: calibration on t ≤ {T_CALIBRATE:g}: reversible {cal['steps_reversible']} steps "
-              f"(h {cal['h_reversible'][0]:.3f}..{cal['h_reversible'][2]:.3f}), PI rtol {cal['rtol']:.3g} "
-              f"{cal['steps_pi']} steps (h {cal['h_pi'][0]:.3f}..{cal['h_pi'][2]:.3f}), with lam_start='previous' "
-              f"{cal['steps_pi_previous']} steps (h {cal['h_pi_previous'][0]:.3f}..{cal['h_pi_previous'][2]:.3f}); "
-              f"steps that change h: {cal['h_changes']}")
+        log(f"{name}, s = {s}: calibration on t ≤ {T_CALIBRATE:g}: reversible {cal['steps_reversible']} steps "
+            f"(h {cal['h_reversible'][0]:.3f}..{cal['h_reversible'][2]:.3f}), PI rtol {cal['rtol']:.3g} "
+            f"{cal['steps_pi']} steps (h {cal['h_pi'][0]:.3f}..{cal['h_pi'][2]:.3f}), with lam_start='previous' "
+            f"{cal['steps_pi_previous']} steps (h {cal['h_pi_previous'][0]:.3f}..{cal['h_pi_previous'][2]:.3f}); "
+            f"steps that change h: {cal['h_changes']}")
         results["runs"][f"{name}, s={s}, N={n}"] = {"problem": name, "stages": s, "steps_target": n,
                                                     "calibration": cal, "runs": long_runs(ex, s, n, cal)}
         _save(results)
     main_key = f"contact, s={S_MAIN}, N={steps}"
     if not a.quick and main_key in results["runs"]:
         results["density"] = density_study(get_example("contact"), results["runs"][main_key]["calibration"]["rtol"])
-    results["meta"]["loadavg_end"] = C.loadavg()
+    results["meta"]["loadavg_end"] = loadavg()
     results["meta"]["wall_s"] = time.perf_counter() - started
     _save(results)
     print_tables(results)
@@ -382,10 +362,7 @@ def main() -> None:
 
 
 def _save(results):
-    path = QUICK_JSON_PATH if results["quick"] else JSON_PATH
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    with open(path, "w") as fh:
-        json.dump(C.jsonable(results), fh, indent=1)
+    write_json(results, QUICK_JSON_PATH if results["quick"] else JSON_PATH, quiet=True)
 
 
 if __name__ == "__main__":

@@ -21,22 +21,14 @@ Prints Markdown tables and writes ``benchmarks/results/stability_limit.json``.
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
-import os
-import sys
-import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-
-from _common import loadavg, machine_info  # noqa: E402
-
-import lobattodae as L  # noqa: E402
-from lobattodae.examples import get_example  # noqa: E402
+import lobattodae as L
+from lib import cli
+from lib.output import results_path, run_meta, write_json
+from lobattodae.examples import get_example
 
 EX = get_example("sleigh")
 V, OMEGA0 = math.sqrt(2.0), 1e-6
@@ -82,11 +74,9 @@ def adaptive_error(stages: int, tol: float, max_step: float | None, t_end: float
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="s = 4 only, three tolerances")
-    ns = ap.parse_args()
-    start = time.strftime("%Y-%m-%d %H:%M")
+    ns = cli.parser(__doc__, "quick", quick={"help": "s = 4 only, three tolerances"}).parse_args()
     k = decay_rate()
+    meta = run_meta(decay_rate=k)
     stages = (4,) if ns.quick else (2, 3, 4, 5)
     hs = (1.0, 4.0, 8.0, 12.0, 16.0, 24.0, 50.0)
     print(f"Part 1: decay rate k = {k:.6f}; R(h) = ω₁/ω₀ against exp(-k h)\n")
@@ -115,14 +105,8 @@ def main() -> None:
             part2.append({"stages": s, "max_step": cap, "tols": list(tols), "runs": runs})
             label = "none" if cap is None else f"{cap:.3g}"
             print(f"| {s} | {label} | " + " | ".join(f"{r['err']:.2e} ({r['steps']})" for r in runs) + " |")
-    out = {"meta": {"date": start, "machine": machine_info(), "loadavg": loadavg(), "decay_rate": k,
-                    "command": " ".join(sys.argv)},
-           "amplification": part1, "adaptive": part2}
     if not ns.quick:
-        path = os.path.join(HERE, "results", "stability_limit.json")
-        with open(path, "w") as fh:
-            json.dump(out, fh, indent=1)
-        print("\nwrote", path)
+        write_json({"meta": meta, "amplification": part1, "adaptive": part2}, results_path("stability_limit.json"))
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ def test_registry():
                      "servo-sleigh", "servo-sleigh-rest"]
     for name, entry in PROBLEMS.items():
         assert isinstance(entry, TestProblem) and entry.name == name
-        assert entry.source and entry.ref_accuracy > 0 and entry.test_bound > 0
+        assert entry.source and entry.ref_accuracy > 0 and entry.test.bound > 0
         first, second = entry.build(), entry.build()
         assert first.problem is second.problem  # built once: compiled code is reused
         assert entry.long == (first.t_span[1] - first.t_span[0] >= 1000)
@@ -79,12 +79,11 @@ def test_initial_values_are_consistent(name):
 def test_constant_steps_reach_the_reference(name):
     entry = PROBLEMS[name]
     s = entry.build()
-    t_span = s.t_span if entry.test_t_end is None else (s.t_span[0], entry.test_t_end)
-    sol = L.solve(s.problem, L.LobattoIIIAIIIB(stages=entry.test_stages), t_span, s.q0, s.p0,
-                  args=s.args, n_steps=entry.test_n_steps)
+    sol = L.solve(s.problem, L.LobattoIIIAIIIB(stages=entry.test.stages), s.t_span, s.q0, s.p0,
+                  args=s.args, n_steps=entry.test.n_steps)
     assert sol.success
     err = error(entry, sol.t, sol.q, sol.p)
-    assert err <= entry.test_bound, (name, err)
+    assert err <= entry.test.bound, (name, err)
     assert err >= entry.ref_accuracy / 100  # compared with a reference, not with itself
 
 
@@ -150,7 +149,7 @@ def test_closed_forms_agree_with_the_library_examples():
 @pytest.mark.parametrize("mod", [knife_edge, vertical_disk])
 def test_closed_forms_solve_the_equations(mod):
     """q' = f(q, p) and φ = 0 along the closed form (central differences, h = 1e-5)."""
-    s = mod.build()
+    s = mod.PROBLEM.build()
     for t in (0.3, 5.0, 77.0):
         q, p = mod.exact(t)
         (qa, _), (qb, _) = mod.exact(t - 1e-5), mod.exact(t + 1e-5)

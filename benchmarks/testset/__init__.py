@@ -21,9 +21,9 @@ from __future__ import annotations
 import lobattodae  # noqa: F401  (float64 before anything else touches JAX)
 
 from . import andrews, knife_edge, rolling_disc, servo_sleigh, sleigh, vertical_disk
-from ._types import Setup, TestProblem, error, reference_at
+from ._types import FastTest, Setup, TestProblem, closed_form, error, reference_at
 
-__all__ = ["PROBLEMS", "Setup", "TestProblem", "error", "reference_at"]
+__all__ = ["PROBLEMS", "FastTest", "Setup", "TestProblem", "closed_form", "error", "reference_at"]
 
 #: name -> TestProblem, in the order of README.md.
 PROBLEMS: dict[str, TestProblem] = {

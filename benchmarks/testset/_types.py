@@ -1,13 +1,15 @@
-"""The records of the test set: :class:`TestProblem` and :class:`Setup`, and :func:`error`."""
+"""The records of the test set (:class:`TestProblem`, :class:`Setup`, :class:`FastTest`), the
+declaration of a closed-form problem (:func:`closed_form`), and :func:`error`."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import functools
+from dataclasses import dataclass
 from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-__all__ = ["Setup", "TestProblem", "error", "reference_at"]
+__all__ = ["FastTest", "Setup", "TestProblem", "closed_form", "error", "reference_at"]
 
 
 class Setup(NamedTuple):
@@ -25,6 +27,16 @@ class Setup(NamedTuple):
     t_span: tuple[float, float]
 
 
+class FastTest(NamedTuple):
+    """The test suite's constant-step run of a problem: ``stages``, ``n_steps`` over the whole
+    interval, and the bound its error must meet (justified in README.md by the measured
+    errors)."""
+
+    stages: int
+    n_steps: int
+    bound: float
+
+
 @dataclass(frozen=True)
 class TestProblem:
     """One problem of the external test set.
@@ -40,22 +52,17 @@ class TestProblem:
     q_ref, p_ref : tuple of tuples
         Reference values of all components of q (and p) at each ``t_ref``; ``p_ref`` is None
         where only q is published (then only q is compared).
-    compare : str
-        ``"qp"`` (q and p compared) or ``"q"`` (q only).
     ref_accuracy : float
         The reference's own accuracy, in the measure of :func:`error`.
+    test : FastTest
+        The test suite's constant-step run.
+    compare : str
+        ``"qp"`` (q and p compared, the default) or ``"q"`` (q only).
     long, stiff : bool
         ``long``: the interval is at least 1000 long; ``stiff``: the problem has fast
         decaying modes (step sizes far above their time scale are of interest).
     reference : callable or None
         ``reference(t) -> (q, p)`` for closed forms (any t); None for tabulated references.
-    test_t_end : float or None
-        End of the shorter interval the fast test uses (must be one of ``t_ref``); None:
-        the test runs over the full ``t_span``.
-    test_stages, test_n_steps, test_bound : int, int, float
-        The fast test: a constant-step run with this many stages and steps must have
-        ``error <= test_bound`` (the bound is justified in README.md by the measured errors).
-    notes : str
     """
 
     __test__ = False  # not a pytest test class
@@ -66,16 +73,12 @@ class TestProblem:
     t_ref: tuple
     q_ref: tuple
     p_ref: tuple | None
-    compare: str
     ref_accuracy: float
-    long: bool
-    stiff: bool
+    test: FastTest
+    compare: str = "qp"
+    long: bool = False
+    stiff: bool = False
     reference: Callable | None = None
-    test_t_end: float | None = None
-    test_stages: int = 4
-    test_n_steps: int = 100
-    test_bound: float = 1e-6
-    notes: str = field(default="", repr=False)
 
     def __post_init__(self):
         if self.compare not in ("q", "qp"):
@@ -85,21 +88,25 @@ class TestProblem:
         if len(self.q_ref) != len(self.t_ref):
             raise ValueError(f"{self.name}: one row of q_ref per t_ref")
 
-    @property
-    def t_end(self) -> float:
-        return float(self.build().t_span[1])
 
-    @property
-    def y_ref(self) -> tuple:
-        """The compared reference values, one row per ``t_ref``: q, followed by p where p is
-        compared."""
-        if self.compare == "q":
-            return tuple(tuple(row) for row in self.q_ref)
-        return tuple(tuple(q) + tuple(p) for q, p in zip(self.q_ref, self.p_ref))
+def closed_form(name: str, source: str, example: Callable, params: dict, init: dict, exact: Callable, *,
+                t_end: float, t_ref: tuple, ref_accuracy: float, test: FastTest, long: bool = False,
+                q_ref: tuple | None = None, p_ref: tuple | None = None) -> TestProblem:
+    """A problem of ``lobattodae.examples`` whose reference is a closed form written here:
+    the problem is ``example(**params, **init)`` (built once), it starts at ``exact(0)`` and runs
+    to ``t_end``; the references at ``t_ref`` are ``exact(t_ref)`` unless given (stored values of
+    a slow ``exact``)."""
 
-    @property
-    def n_compared(self) -> int:
-        return len(self.q_ref[0]) * (2 if self.compare == "qp" else 1)
+    @functools.cache
+    def build() -> Setup:
+        ex = example(**params, **init)
+        q0, p0 = exact(0.0)
+        return Setup(problem=ex.problem, q0=q0, p0=p0, args=ex.args, t_span=(0.0, t_end))
+
+    if q_ref is None:
+        q, p = exact(np.array(t_ref))
+        q_ref, p_ref = tuple(map(tuple, q)), tuple(map(tuple, p))
+    return TestProblem(name, source, build, t_ref, q_ref, p_ref, ref_accuracy, test, long=long, reference=exact)
 
 
 def reference_at(entry: TestProblem, t_ref: float) -> tuple[np.ndarray, np.ndarray | None]:

@@ -42,7 +42,7 @@ import numpy as np
 
 import lobattodae as L
 
-from ._types import Setup, TestProblem
+from ._types import FastTest, Setup, TestProblem
 
 # ----------------------------------------------------------------------------- parameters
 # Test Set for IVP Solvers, andrews.f (also Hairer & Wanner II, Table 7.1).
@@ -146,17 +146,19 @@ def forces(q, w, P=PARAMS):
     ])
 
 
+def _loop_trig(q):
+    """cos and sin of the angles of the loops in g and G: β, β+Θ, γ, Φ+δ, δ, Ω+ε, ε; NumPy for
+    NumPy (also complex) input, else ``jax.numpy``."""
+    xp = jnp if isinstance(q, jax.Array) else np
+    return [(xp.cos(a), xp.sin(a)) for a in (q[0], q[0] + q[1], q[2], q[3] + q[4], q[4], q[5] + q[6], q[6])]
+
+
 def constraints(q, P=PARAMS):
     """g(q) (6,): the three loops closed at the fixed points B and A (test set ``g``)."""
     xp = jnp if isinstance(q, jax.Array) else np
     rr, d, ss, e, zt, zf, u = P["rr"], P["d"], P["ss"], P["e"], P["zt"], P["zf"], P["u"]
-    cobe, sibe = xp.cos(q[0]), xp.sin(q[0])
-    cobeth, sibeth = xp.cos(q[0] + q[1]), xp.sin(q[0] + q[1])
-    coga, siga = xp.cos(q[2]), xp.sin(q[2])
-    cophde, siphde = xp.cos(q[3] + q[4]), xp.sin(q[3] + q[4])
-    code, side = xp.cos(q[4]), xp.sin(q[4])
-    coomep, siomep = xp.cos(q[5] + q[6]), xp.sin(q[5] + q[6])
-    coep, siep = xp.cos(q[6]), xp.sin(q[6])
+    (cobe, sibe), (cobeth, sibeth), (coga, siga), (cophde, siphde), (code, side), (coomep, siomep), (coep, siep) = \
+        _loop_trig(q)
     return xp.stack([
         rr * cobe - d * cobeth - ss * siga - P["xb"],
         rr * sibe - d * sibeth + ss * coga - P["yb"],
@@ -171,13 +173,8 @@ def constraint_jacobian(q, P=PARAMS):
     """G(q) = g_q(q) (6×7), as printed in the test set (``gp``)."""
     xp = jnp if isinstance(q, jax.Array) else np
     rr, d, ss, e, zt, zf, u = P["rr"], P["d"], P["ss"], P["e"], P["zt"], P["zf"], P["u"]
-    sibe, cobe = xp.sin(q[0]), xp.cos(q[0])
-    sibeth, cobeth = xp.sin(q[0] + q[1]), xp.cos(q[0] + q[1])
-    siga, coga = xp.sin(q[2]), xp.cos(q[2])
-    siphde, cophde = xp.sin(q[3] + q[4]), xp.cos(q[3] + q[4])
-    side, code = xp.sin(q[4]), xp.cos(q[4])
-    siomep, coomep = xp.sin(q[5] + q[6]), xp.cos(q[5] + q[6])
-    siep, coep = xp.sin(q[6]), xp.cos(q[6])
+    (cobe, sibe), (cobeth, sibeth), (coga, siga), (cophde, siphde), (code, side), (coomep, siomep), (coep, siep) = \
+        _loop_trig(q)
     z = 0.0 * sibe
     a1, a2 = -rr * sibe + d * sibeth, d * sibeth
     b1, b2 = rr * cobe - d * cobeth, -d * cobeth
@@ -272,19 +269,6 @@ def _p_ref():
 
 
 PROBLEM = TestProblem(
-    name="andrews",
-    source=("Hairer & Wanner, Solving ODEs II (2nd ed. 1996), Sect. VII.7, eqs. (7.1)-(7.6); "
-            "Mazzia & Magherini, Test Set for IVP Solvers, release 2.4 (Bari 2008), problem "
-            "'andrews' (andrews.f)"),
-    build=build,
-    t_ref=(T_END,),
-    q_ref=(Q_REF,),
-    p_ref=(_p_ref(),),
-    compare="qp",
-    ref_accuracy=1e-10,
-    long=False,
-    stiff=False,
-    test_stages=5,
-    test_n_steps=100,
-    test_bound=1.7e-9,
-)
+    "andrews", "Hairer & Wanner, Solving ODEs II (2nd ed. 1996), Sect. VII.7, eqs. (7.1)-(7.6); Mazzia & Magherini, "
+    "Test Set for IVP Solvers, release 2.4 (Bari 2008), problem 'andrews' (andrews.f)", build, t_ref=(T_END,),
+    q_ref=(Q_REF,), p_ref=(_p_ref(),), ref_accuracy=1e-10, test=FastTest(stages=5, n_steps=100, bound=1.7e-9))

@@ -16,11 +16,10 @@ g T/(2ω) ≈ 570; relative 1e-15).
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
+from lobattodae import examples
 
-from ._types import Setup, TestProblem
+from ._types import FastTest, closed_form
 
 PARAMS = dict(m=2.0, J=0.5, g=0.8)
 INIT = dict(omega=0.7, theta0=0.2, v0=0.5, x0=0.1, y0=-0.3)
@@ -43,31 +42,7 @@ def exact(t):
     return q, p
 
 
-@functools.cache
-def build() -> Setup:
-    from lobattodae.examples import knife_edge as _lib_knife_edge
-
-    ex = _lib_knife_edge(**PARAMS, **INIT)
-    q0, p0 = exact(0.0)
-    return Setup(problem=ex.problem, q0=q0, p0=p0, args=ex.args, t_span=(0.0, T_END))
-
-
-_Q, _P = exact(np.array(T_REF))
-
-PROBLEM = TestProblem(
-    name="knife-edge",
-    source=("shared/PROBLEMS.md §2 (knife edge on an inclined plane; Bloch, Nonholonomic Mechanics "
-            "and Control, Sect. 1.6); problem: lobattodae.examples.knife_edge"),
-    build=build,
-    t_ref=T_REF,
-    q_ref=tuple(map(tuple, _Q)),
-    p_ref=tuple(map(tuple, _P)),
-    compare="qp",
-    ref_accuracy=1e-15,
-    long=True,
-    stiff=False,
-    reference=exact,
-    test_stages=4,
-    test_n_steps=4000,
-    test_bound=3.7e-8,
-)
+PROBLEM = closed_form(
+    "knife-edge", "shared/PROBLEMS.md §2 (knife edge on an inclined plane; Bloch, Nonholonomic Mechanics and "
+    "Control, Sect. 1.6); problem: lobattodae.examples.knife_edge", examples.knife_edge, PARAMS, INIT, exact,
+    t_end=T_END, t_ref=T_REF, ref_accuracy=1e-15, long=True, test=FastTest(stages=4, n_steps=4000, bound=3.7e-8))

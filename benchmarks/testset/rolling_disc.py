@@ -46,7 +46,7 @@ import functools
 
 import numpy as np
 
-from ._types import Setup, TestProblem
+from ._types import FastTest, Setup, TestProblem
 
 PARAMS = {"g": 9.81, "r": 0.26, "m": 3.43}
 Q0 = (0.0, 0.3, 0.0, 0.0, 0.0)
@@ -202,20 +202,8 @@ P_REF = (
 )
 
 PROBLEM = TestProblem(
-    name="rolling-disc",
-    source=("SymPy documentation, Physics/Mechanics examples, 'A rolling disc, with Kane's method' "
-            "(rollingdisc_example_kane), with the contact point's coordinates, dependent speeds and "
-            "rolling velocity constraints as in sympy/physics/mechanics/tests/test_kane5.py; "
-            "converted by lobattodae.mechanics.from_kanes_method"),
-    build=build,
-    t_ref=T_REF,
-    q_ref=Q_REF,
-    p_ref=P_REF,
-    compare="qp",
-    ref_accuracy=2e-12,
-    long=False,
-    stiff=False,
-    test_stages=5,
-    test_n_steps=400,
-    test_bound=1.2e-8,
-)
+    "rolling-disc", "SymPy documentation, Physics/Mechanics examples, 'A rolling disc, with Kane's method' "
+    "(rollingdisc_example_kane), with the contact point's coordinates, dependent speeds and rolling velocity "
+    "constraints as in sympy/physics/mechanics/tests/test_kane5.py; converted by "
+    "lobattodae.mechanics.from_kanes_method", build, T_REF, Q_REF, P_REF, ref_accuracy=2e-12,
+    test=FastTest(stages=5, n_steps=400, bound=1.2e-8))

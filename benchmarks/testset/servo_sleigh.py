@@ -45,7 +45,7 @@ import numpy as np
 
 import lobattodae as L
 
-from ._types import Setup, TestProblem
+from ._types import FastTest, Setup, TestProblem
 
 PARAMS = dict(m=2.0, I=0.3, a=0.4, c_v=1e4, c_w=1e4)
 T_END = 10.0
@@ -196,33 +196,8 @@ _SOURCE = ("this test set (benchmarks/testset/servo_sleigh.py): Chaplygin sleigh
            "Mechanics and Control, Sect. 1.7) driven by high-gain velocity servos, c = 1e4")
 
 PROBLEM_SMOOTH = TestProblem(
-    name="servo-sleigh",
-    source=_SOURCE + "; starts on the commanded velocities",
-    build=build_smooth,
-    t_ref=T_REF,
-    q_ref=SMOOTH_Q_REF,
-    p_ref=SMOOTH_P_REF,
-    compare="qp",
-    ref_accuracy=1e-13,
-    long=False,
-    stiff=True,
-    test_stages=3,
-    test_n_steps=1600,
-    test_bound=1.4e-4,
-)
-
+    "servo-sleigh", _SOURCE + "; starts on the commanded velocities", build_smooth, T_REF, SMOOTH_Q_REF, SMOOTH_P_REF,
+    ref_accuracy=1e-13, stiff=True, test=FastTest(stages=3, n_steps=1600, bound=1.4e-4))
 PROBLEM_REST = TestProblem(
-    name="servo-sleigh-rest",
-    source=_SOURCE + "; starts at rest (stiff initial transient)",
-    build=build_rest,
-    t_ref=T_REF,
-    q_ref=REST_Q_REF,
-    p_ref=REST_P_REF,
-    compare="qp",
-    ref_accuracy=1e-13,
-    long=False,
-    stiff=True,
-    test_stages=3,
-    test_n_steps=6400,
-    test_bound=1e-6,
-)
+    "servo-sleigh-rest", _SOURCE + "; starts at rest (stiff initial transient)", build_rest, T_REF, REST_Q_REF,
+    REST_P_REF, ref_accuracy=1e-13, stiff=True, test=FastTest(stages=3, n_steps=6400, bound=1e-6))

@@ -20,11 +20,10 @@ components are compared. :func:`compute_reference` regenerates the stored values
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
+from lobattodae import examples
 
-from ._types import Setup, TestProblem
+from ._types import FastTest, closed_form
 
 PARAMS = dict(m=1.5, I=0.8, a=0.6)
 INIT = dict(theta0=0.1, v0=0.2, omega0=1.2, x0=0.0, y0=0.0)
@@ -88,15 +87,6 @@ def compute_reference(times=T_REF, dps=30):
     return np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
 
 
-@functools.cache
-def build() -> Setup:
-    from lobattodae.examples import chaplygin_sleigh
-
-    ex = chaplygin_sleigh(**PARAMS, **INIT)
-    q0, p0 = exact_mp(0.0)
-    return Setup(problem=ex.problem, q0=q0, p0=p0, args=ex.args, t_span=(0.0, T_END))
-
-
 # compute_reference() with 30 digits (mpmath 1.3.0), rounded to float64; 40 digits give the
 # same doubles. Rows: t = 10, 100, 1000.
 Q_REF = (
@@ -110,20 +100,8 @@ P_REF = (
     (-1.1503496000926607, 1.2888350544451588, 0.0),
 )
 
-PROBLEM = TestProblem(
-    name="sleigh",
-    source=("shared/PROBLEMS.md §3 (Chaplygin sleigh; Bloch, Nonholonomic Mechanics and Control, "
-            "Sect. 1.7); problem: lobattodae.examples.chaplygin_sleigh"),
-    build=build,
-    t_ref=T_REF,
-    q_ref=Q_REF,
-    p_ref=P_REF,
-    compare="qp",
-    ref_accuracy=1e-16,
-    long=True,
-    stiff=False,
-    reference=exact,
-    test_stages=4,
-    test_n_steps=4000,
-    test_bound=5e-8,
-)
+PROBLEM = closed_form(
+    "sleigh", "shared/PROBLEMS.md §3 (Chaplygin sleigh; Bloch, Nonholonomic Mechanics and Control, Sect. 1.7); "
+    "problem: lobattodae.examples.chaplygin_sleigh", examples.chaplygin_sleigh, PARAMS, INIT, exact, t_end=T_END,
+    t_ref=T_REF, q_ref=Q_REF, p_ref=P_REF, ref_accuracy=1e-16, long=True,
+    test=FastTest(stages=4, n_steps=4000, bound=5e-8))

@@ -12,11 +12,10 @@ Reference: the closed form re-implemented here from PROBLEMS.md: ``φ = φ0 + ω
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
+from lobattodae import examples
 
-from ._types import Setup, TestProblem
+from ._types import FastTest, closed_form
 
 PARAMS = dict(m=1.3, R=0.7, I=0.4, J=0.9)
 INIT = dict(omega_phi=1.5, omega_theta=2.5, x0=0.2, y0=-0.1, phi0=0.3, theta0=0.1)
@@ -38,31 +37,7 @@ def exact(t):
     return q, p
 
 
-@functools.cache
-def build() -> Setup:
-    from lobattodae.examples import vertical_rolling_disk
-
-    ex = vertical_rolling_disk(**PARAMS, **INIT)
-    q0, p0 = exact(0.0)
-    return Setup(problem=ex.problem, q0=q0, p0=p0, args=ex.args, t_span=(0.0, T_END))
-
-
-_Q, _P = exact(np.array(T_REF))
-
-PROBLEM = TestProblem(
-    name="vertical-disk",
-    source=("shared/PROBLEMS.md §4 (vertical rolling disk; Bloch, Nonholonomic Mechanics and Control, "
-            "Sect. 1.4); problem: lobattodae.examples.vertical_rolling_disk"),
-    build=build,
-    t_ref=T_REF,
-    q_ref=tuple(map(tuple, _Q)),
-    p_ref=tuple(map(tuple, _P)),
-    compare="qp",
-    ref_accuracy=1e-15,
-    long=False,
-    stiff=False,
-    reference=exact,
-    test_stages=4,
-    test_n_steps=400,
-    test_bound=8e-8,
-)
+PROBLEM = closed_form(
+    "vertical-disk", "shared/PROBLEMS.md §4 (vertical rolling disk; Bloch, Nonholonomic Mechanics and Control, "
+    "Sect. 1.4); problem: lobattodae.examples.vertical_rolling_disk", examples.vertical_rolling_disk, PARAMS, INIT,
+    exact, t_end=T_END, t_ref=T_REF, ref_accuracy=1e-15, test=FastTest(stages=4, n_steps=400, bound=8e-8))
