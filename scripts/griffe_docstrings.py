@@ -355,12 +355,14 @@ def _check_object(obj, path: str) -> list[str]:
 
 def _class_parameters(cls) -> tuple[list[str], list[str]]:
     """``(constructor parameters, fields)``: the fields are the class's public annotated
-    attributes (those of a dataclass or a ``NamedTuple``); the constructor's parameters are
-    those of the class's own ``__init__``, or the fields where it has none."""
+    attributes (those of a dataclass or a ``NamedTuple``, and its properties, which griffe
+    loads as attributes labelled ``property``); the constructor's parameters are those of the
+    class's own ``__init__``, or where it has none (a dataclass before griffe's dataclass
+    extension has made its ``__init__``, a ``NamedTuple``) the fields that are not properties."""
     fields = [name for name, member in cls.members.items()
               if not member.is_alias and member.is_attribute and not name.startswith("_")
               and member.annotation is not None]
     init = cls.members.get("__init__")
     if init is not None and not init.is_alias and init.is_function:
         return [p.name for p in init.parameters if p.name not in _IMPLICIT], fields
-    return fields, fields
+    return [name for name in fields if "property" not in cls.members[name].labels], fields

@@ -48,7 +48,7 @@ FAKE = '''
 
 from typing import NamedTuple
 
-__all__ = ["bare", "complete", "Record", "Built", "CONSTANT"]
+__all__ = ["bare", "complete", "Record", "Built", "Pair", "CONSTANT"]
 
 CONSTANT = 1.0
 
@@ -119,6 +119,23 @@ class Built:
 
     def __init__(self, a, b):
         self.a, self.b = a, b
+
+
+class Pair(NamedTuple):
+    """Built from its fields, documented as Parameters: its property is no parameter.
+
+    Parameters
+    ----------
+    a, b : float
+        The two.
+    """
+
+    a: float
+    b: float
+
+    @property
+    def total(self) -> float:
+        return self.a + self.b
 '''
 
 

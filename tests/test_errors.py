@@ -141,7 +141,7 @@ def test_repeated_constraint_is_singular():
         ({"n_steps": None, "rtol": float("nan")}, "rtol must be a positive"),
         ({"n_steps": None, "rtol": 1e-17}, "below what float64"),
         ({"n_steps": None, "atol": -1.0}, "atol must be a non-negative"),
-        ({"n_steps": None, "first_step": 0.0}, "first_step must be a positive"),
+        ({"n_steps": None, "first_step": -0.5}, "first_step must be a non-negative"),
         ({"n_steps": None, "first_step": 5.0}, "longer than the interval"),
         ({"n_steps": None, "max_step": -1.0}, "max_step must be a positive"),
         ({"n_steps": None, "t_eval": [0.5, 0.2]}, "sorted in the direction"),

@@ -47,19 +47,21 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None, *, min_
     """Keep compiled step loops on disk, so that a new process skips XLA compilation.
 
     A ``solve`` compiles its step loop on the first call for each problem, method and shape
-    (seconds on a small CPU, most of it XLA compilation; ``benchmarks/RESULTS.md``); later
-    calls in the same process reuse it. With the cache on, a *new* process loads the
-    executable from disk instead (what remains is tracing). This switches on JAX's persistent
-    compilation cache for the whole process (``jax_compilation_cache_dir``). ``import
-    lobattodae`` already does (:func:`enable_default_cache`: compilations of a second or more,
-    at most 1 GiB); call this to choose the directory or to store every entry, however fast it
-    compiled (the ``lobattodae`` command line does). ``LOBATTODAE_NO_CACHE=1`` keeps the
-    library and the command line from switching it on.
+    (most of the first call's time is XLA compilation; measured on the
+    [benchmarks page](../benchmarks/index.md)); later calls in the same process reuse it.
+    With the cache on, a *new* process loads the executable from disk instead (what remains
+    is tracing). This switches on JAX's persistent compilation cache for the whole process
+    (``jax_compilation_cache_dir``). ``import lobattodae`` already does (compilations of a
+    second or more, at most 1 GiB, in the user cache directory; every compilation in
+    ``$LOBATTODAE_CACHE_DIR`` when that is set); call this to choose the directory or to
+    store every entry, however fast it compiled (the ``lobattodae`` command line does).
+    ``LOBATTODAE_NO_CACHE=1`` keeps the library and the command line from switching it on.
 
     Parameters
     ----------
     directory : path, optional
-        Where to keep the cache (created if missing); default :func:`default_cache_dir`.
+        Where to keep the cache (created if missing); default ``$LOBATTODAE_CACHE_DIR``, else
+        ``$XDG_CACHE_HOME/lobattodae`` (``~/.cache/lobattodae``).
     min_compile_time : float
         Store only compilations that took at least this many seconds (0: every one).
     max_size : int
@@ -70,6 +72,11 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None, *, min_
     -------
     Path
         The cache directory.
+
+    Raises
+    ------
+    ValueError
+        The directory cannot be created.
     """
     path = Path(directory).expanduser() if directory is not None else default_cache_dir()
     try:

@@ -259,11 +259,35 @@ class PIController(_TimeAndEnd):
     ``rtol' = c_tol · rtol^(s/(2s-2))`` (``c_tol`` from :data:`C_TOL` unless given) and the
     plain per-step test (k = s). It is only safe where the solution is smooth on the scale of
     the steps: it does not measure the step's own error, and on problems with fast transients
-    it returns errors 10³–10⁶ × rtol while reporting success (``benchmarks/RESULTS.md``).
+    it returns errors orders of magnitude above rtol while reporting success (measured on the
+    [benchmarks page](../benchmarks/index.md)).
 
     Every field is validated on construction: ``0 < safety ≤ 1``, ``0 < fac_min < 1 <
     fac_max``, ``beta1 > 0``, ``beta2 ≥ 0``, ``hysteresis ≥ 1``, ``estimate`` one of
     :data:`ESTIMATES`, ``c_tol > 0`` (or None) and only with ``estimate="embedded"``.
+
+    Parameters
+    ----------
+    safety : float, optional
+        The factor ``safety`` of the step-size rule (default 0.9).
+    fac_min, fac_max : float, optional
+        The bounds of the factor by which h changes from one step to the next (defaults
+        0.2 and 5).
+    beta1, beta2 : float, optional
+        The PI exponents β₁, β₂ (defaults 0.7 and 0.4; ``beta2=0``: the plain I controller).
+    hysteresis : float, optional
+        Growth factors in ``[1, hysteresis]`` keep h (default 1.2; 1 switches it off).
+    estimate : {"doubling", "embedded"}, optional
+        The local error estimate: step doubling (default) or the embedded formula.
+    c_tol : float, optional
+        ``estimate="embedded"`` only: the constant of the tolerance map (default: ``C_TOL``
+        for the method's s).
+
+    Raises
+    ------
+    ValueError
+        A field outside its range, an unknown ``estimate``, or ``c_tol`` without
+        ``estimate="embedded"``.
     """
 
     safety: float = 0.9
@@ -301,16 +325,66 @@ class PIController(_TimeAndEnd):
             check("c_tol", lambda v: v > 0, "c_tol > 0, or None for the calibrated C_TOL of the method's s")
 
     def tolerance_constant(self, stages: int) -> float:
-        """``c_tol`` of the embedded estimate for an s-stage method: the field, or :data:`C_TOL`."""
+        """``c_tol`` of the embedded estimate for an s-stage method.
+
+        Parameters
+        ----------
+        stages : int
+            The method's number of stages s.
+
+        Returns
+        -------
+        float
+            The field ``c_tol``, or :data:`C_TOL` of s (of its largest s for larger s).
+        """
         if self.c_tol is not None:
             return float(self.c_tol)
         return C_TOL[min(stages, max(C_TOL))]
 
     def error_exponent(self, stages: int) -> int:
-        """k: the power of h in the controlled error (``2s - 2``; ``s`` for the embedded estimate)."""
+        """k: the power of h in the controlled error.
+
+        Parameters
+        ----------
+        stages : int
+            The method's number of stages s.
+
+        Returns
+        -------
+        int
+            ``2s - 2`` (step doubling), ``s`` (the embedded estimate).
+        """
         return 2 * stages - 2 if self.estimate == "doubling" else stages
 
     def init(self, problem, method, t0, t1, q0, p0, lam0, args, options: ControlOptions) -> AdaptiveState:
+        """The controller's state before the first step, with the first step size (``first_step``,
+        or chosen from the initial slopes).
+
+        Part of the controller protocol that the compiled loop calls; users pass the
+        controller to :func:`~lobattodae.solve` and do not call it.
+
+        Parameters
+        ----------
+        problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+            The problem.
+        method : LobattoIIIAIIIB
+            The method (its number of stages sets the order).
+        t0, t1 : jax.Array
+            The interval of the run.
+        q0, p0 : jax.Array, shape (n,)
+            Initial values; their dtype is the state's.
+        lam0 : jax.Array, shape (m,)
+            Initial multiplier.
+        args : pytree
+            Passed to the problem functions.
+        options : ControlOptions
+            The traced numbers of the run (``rtol``, ``atol``, ``first_step``, ``max_step``).
+
+        Returns
+        -------
+        AdaptiveState
+            The state at ``t0``.
+        """
         s = method.stages
         rtol, atol = options.rtol, options.atol
         if self.estimate == "embedded":
@@ -330,9 +404,51 @@ class PIController(_TimeAndEnd):
         )
 
     def proposal(self, st: AdaptiveState):
+        """The next step to attempt.
+
+        Part of the controller protocol that the compiled loop calls; users pass the
+        controller to :func:`~lobattodae.solve` and do not call it.
+
+        Parameters
+        ----------
+        st : AdaptiveState
+            The controller's state.
+
+        Returns
+        -------
+        t, h : jax.Array
+            The step's start and size, shortened (or slightly stretched) to end on the end of
+            the interval when it comes near it.
+        """
         return st.t, _end_clipped(st.t, st.h, st.t_end)
 
     def adapt(self, st: AdaptiveState, problem, args, report: StepReport):
+        """The error test of an attempted step and the next step size.
+
+        Part of the controller protocol that the compiled loop calls; users pass the
+        controller to :func:`~lobattodae.solve` and do not call it.
+
+        Parameters
+        ----------
+        st : AdaptiveState
+            The controller's state.
+        problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+            The problem (not used by this controller).
+        args : pytree
+            Passed to the problem functions (not used by this controller).
+        report : StepReport
+            The attempted step: its size, values, error estimate and whether Newton converged.
+
+        Returns
+        -------
+        accept : jax.Array
+            Bool: the step passes the test and is kept.
+        state : AdaptiveState
+            The state after the step (moved on if accepted) with the next step size.
+        result : jax.Array
+            ``Result.SUCCESSFUL``, or ``Result.STEP_SIZE_TOO_SMALL`` when the next step would
+            be below ``1e-14·max(|t|, |t1 - t0|)``.
+        """
         k = st.order
         size = jnp.maximum(jnp.abs(report.y0), jnp.abs(report.y1))
         scale = st.atol + st.rtol * size
@@ -368,10 +484,41 @@ class PIController(_TimeAndEnd):
         return accept, new, result
 
     def stop_at(self, st: AdaptiveState, t_stop) -> AdaptiveState:
+        """Move the end of the run to ``t_stop`` (a terminal event's zero) and aim the next step
+        at it.
+
+        Part of the controller protocol that the compiled loop calls; users pass the
+        controller to :func:`~lobattodae.solve` and do not call it.
+
+        Parameters
+        ----------
+        st : AdaptiveState
+            The controller's state.
+        t_stop : jax.Array
+            The new end.
+
+        Returns
+        -------
+        AdaptiveState
+            The state with ``t_end = t_stop`` and the next step ending there.
+        """
         return st._replace(t_end=t_stop, h=t_stop - st.t)
 
     def step_to(self, st: AdaptiveState, t_target) -> AdaptiveState:
-        """The next step ends at ``t_target`` (an event's zero to land on); the end stays."""
+        """The next step ends at ``t_target`` (an event's zero to land on); the end stays.
+
+        Parameters
+        ----------
+        st : AdaptiveState
+            The controller's state.
+        t_target : jax.Array
+            Where the next step is to end.
+
+        Returns
+        -------
+        AdaptiveState
+            The state with the next step size ``t_target - t``.
+        """
         return st._replace(h=t_target - st.t)
 
 
@@ -430,8 +577,8 @@ class ReversibleStepSize(_TimeAndEnd):
     is odd), the variable-step method is R-reversible, and on reversible integrable problems
     its energy error stays bounded, as with constant steps (Hairer & Söderlind, backward
     error analysis), while error-controlled steps (:class:`PIController`) make it drift
-    (measured in ``docs/reversible-control.md``: contact oscillator, s = 3, 10⁶ steps, max
-    |ΔH| 4.2e-5 in every decade of time against PI's linear drift to 2.0e-1 at the same cost).
+    (measured in [Reversible step sizes](../reversible-control.md) and on the
+    [benchmarks page](../benchmarks/index.md)).
     On problems that are not reversible it protects nothing.
 
     On the constraint manifold ``y = (q, p)`` is the state: σ and G are evaluated at the
@@ -459,6 +606,11 @@ class ReversibleStepSize(_TimeAndEnd):
         ``‖(f, g)‖₂``. Written in ``jax.numpy`` (it is differentiated), even under the
         problem's reversing symmetry, and a fixed function object: the controller is part of
         the compiled loop's identity, so a new ``lambda`` per call recompiles.
+
+    Raises
+    ------
+    TypeError
+        ``density`` is not callable, or not hashable.
     """
 
     density: Callable[..., Any] = phase_space_speed
@@ -479,8 +631,31 @@ class ReversibleStepSize(_TimeAndEnd):
 
     def density_and_rate(self, problem, t, q, p, lam, args):
         """``(σ(t, q, p), G(t, q, p))``: the density and its logarithmic rate of change along
-        the flow, both at the consistent multiplier ``λ(t, q, p)`` (``lam`` is Newton's
-        starting guess for it)."""
+        the flow, both at the consistent multiplier ``λ(t, q, p)``.
+
+        Parameters
+        ----------
+        problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+            The problem.
+        t : float
+            Time.
+        q, p : jax.Array, shape (n,)
+            The state.
+        lam : jax.Array, shape (m,)
+            Newton's starting guess for the consistent multiplier ``λ(t, q, p)``.
+        args : pytree
+            Passed to the problem functions and the density.
+
+        Returns
+        -------
+        sigma, rate : jax.Array
+            σ and ``G = d/dt log σ`` along the DAE's flow (scalars).
+
+        Raises
+        ------
+        ShapeError
+            The density does not return a single number (found when the loop is traced).
+        """
 
         def log_density(tt, qq, pp):
             lam_c = consistent_lambda(problem, tt, qq, pp, lam, args, iterations=1)
@@ -506,6 +681,36 @@ class ReversibleStepSize(_TimeAndEnd):
         return jnp.reshape(sigma, ())
 
     def init(self, problem, method, t0, t1, q0, p0, lam0, args, options: ControlOptions) -> ReversibleState:
+        """The controller's state before the first step: ε from the first step size and σ(y_0),
+        and ``ρ_{1/2}``.
+
+        Part of the controller protocol that the compiled loop calls; users pass the
+        controller to :func:`~lobattodae.solve` and do not call it.
+
+        Parameters
+        ----------
+        problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+            The problem.
+        method : LobattoIIIAIIIB
+            The method (its number of stages sets the order).
+        t0, t1 : jax.Array
+            The interval of the run.
+        q0, p0 : jax.Array, shape (n,)
+            Initial values; their dtype is the state's.
+        lam0 : jax.Array, shape (m,)
+            Initial multiplier.
+        args : pytree
+            Passed to the problem functions.
+        options : ControlOptions
+            The traced numbers of the run (``rtol``, ``atol``, ``first_step``, ``max_step``).
+
+        Returns
+        -------
+        ReversibleState
+            The state at ``t0`` (ε is NaN when the density or its rate is not finite and
+            positive there: the first step then ends the run with
+            ``Result.DENSITY_NOT_POSITIVE``).
+        """
         k = 2 * method.stages - 2
         auto = jnp.abs(initial_step(problem, t0, t1, q0, p0, lam0, args, options.rtol, options.atol, k, options.max_step))
         h0 = jnp.where(options.first_step > 0, jnp.minimum(options.first_step, options.max_step), auto)
@@ -521,10 +726,52 @@ class ReversibleStepSize(_TimeAndEnd):
         )
 
     def proposal(self, st: ReversibleState):
+        """The next step, ``h = d·min(ε/ρ, max_step)``.
+
+        Part of the controller protocol that the compiled loop calls; users pass the
+        controller to :func:`~lobattodae.solve` and do not call it.
+
+        Parameters
+        ----------
+        st : ReversibleState
+            The controller's state.
+
+        Returns
+        -------
+        t, h : jax.Array
+            The step's start and size, shortened (or slightly stretched) to end on the end of
+            the interval when it comes near it.
+        """
         h = st.direction * jnp.minimum(st.epsilon / st.rho, st.max_step)
         return st.t, _end_clipped(st.t, h, st.t_end)
 
     def adapt(self, st: ReversibleState, problem, args, report: StepReport):
+        """Advance ρ by the leapfrog update after a step (there is no error test).
+
+        Part of the controller protocol that the compiled loop calls; users pass the
+        controller to :func:`~lobattodae.solve` and do not call it.
+
+        Parameters
+        ----------
+        st : ReversibleState
+            The controller's state.
+        problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+            The problem (σ and G are evaluated at the step's end).
+        args : pytree
+            Passed to the problem functions and the density.
+        report : StepReport
+            The step taken.
+
+        Returns
+        -------
+        accept : jax.Array
+            Bool: Newton converged and the density is positive and finite at the step's end.
+        state : ReversibleState
+            The state after the step (unchanged if not accepted).
+        result : jax.Array
+            ``Result.SUCCESSFUL``, the stepper's code of a failed step, or
+            ``Result.DENSITY_NOT_POSITIVE``.
+        """
         t1 = jnp.where(report.h == st.t_end - report.t, st.t_end, report.t + report.h)
         # The step sizes are not differentiated (as with PIController): derivatives are those of
         # the discrete map along the chosen steps. (Through ρ they would need the second
@@ -546,13 +793,52 @@ class ReversibleStepSize(_TimeAndEnd):
         return ok, new, result.astype(jnp.int32)
 
     def stop_at(self, st: ReversibleState, t_stop) -> ReversibleState:
+        """Move the end of the run to ``t_stop`` (a terminal event's zero); the next step is
+        shortened to end there by :meth:`proposal`.
+
+        Part of the controller protocol that the compiled loop calls; users pass the
+        controller to :func:`~lobattodae.solve` and do not call it.
+
+        Parameters
+        ----------
+        st : ReversibleState
+            The controller's state.
+        t_stop : jax.Array
+            The new end.
+
+        Returns
+        -------
+        ReversibleState
+            The state with ``t_end = t_stop``.
+        """
         return st._replace(t_end=t_stop)
 
     def turn_around(self, st: ReversibleState, problem, args, q, p, lam, t_end) -> ReversibleState:
         """The state that runs the control backwards from the current step point ``(q, p, λ)``
         towards ``t_end``: ``ρ_{N-1/2} = ρ_{N+1/2} - d ε G(y_N)`` and ``d → -d``, so that
         (with a symmetric method) the steps of the forward run are retraced in reverse order
-        and ``y_{N-1}, …, y_0`` are recovered up to round-off and Newton's tolerance."""
+        and ``y_{N-1}, …, y_0`` are recovered up to round-off and Newton's tolerance.
+
+        Parameters
+        ----------
+        st : ReversibleState
+            The state at the end of the forward run (at ``y_N``).
+        problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
+            The problem.
+        args : pytree
+            Passed to the problem functions and the density.
+        q, p : jax.Array, shape (n,)
+            The current step point ``y_N``.
+        lam : jax.Array, shape (m,)
+            Its multiplier (Newton's starting guess for the consistent one).
+        t_end : float
+            Where the backward run is to end.
+
+        Returns
+        -------
+        ReversibleState
+            The state of the backward run, starting at ``st.t``.
+        """
         _, rate = self.density_and_rate(problem, st.t, q, p, lam, args)
         return st._replace(
             rho=st.rho - st.direction * st.epsilon * rate, direction=-st.direction, t0=st.t,

@@ -101,7 +101,7 @@ def resolve_checkpoints(checkpoints, length: int) -> int | None:
 
 def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam0, args=None, *,
               checkpoints: int | str | None = "auto") -> IntegrateResult:
-    """Pure, jit/vmap/grad-able integration of ``n_steps`` steps of size ``h`` (no input checks).
+    """Pure, jit/vmap/grad-able integration of ``n_steps`` steps of size ``h`` (initial values not checked).
 
     The building block for batched use: ``jax.vmap(integrate, ...)`` over initial values or
     ``args``. The initial values must be consistent (see :func:`consistent_lambda`); nothing
@@ -118,7 +118,8 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
     backward pass (O(k + n_steps/k) memory, Newton's iterations run again). The default
     ``"auto"`` takes k = round(√n_steps) from 100 steps on (:data:`AUTO_CHECKPOINTS_FROM`):
     O(√n_steps) memory, and on the measured problems a faster gradient than keeping every
-    step. The forward values do not depend on ``checkpoints``.
+    step (see the [benchmarks page](../benchmarks/index.md)). The forward values do not
+    depend on ``checkpoints``.
 
     Parameters
     ----------
@@ -142,6 +143,12 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
         ``(q, p, lam, status)``: time-major arrays with ``n_steps + 1`` rows (row 0 is the
         initial value) and the :class:`Result` code (0 on success, else the first failure's
         code). The rows after a failed step are NaN.
+
+    Raises
+    ------
+    LobattoDAEInputError
+        ``n_steps`` is not a positive integer, or ``checkpoints`` is not ``"auto"``, None or
+        a positive integer.
     """
     check_count("n_steps", n_steps)
     checkpoints = resolve_checkpoints(checkpoints, n_steps)
@@ -308,6 +315,15 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
         :func:`~lobattodae.solve` checks them (:class:`~lobattodae.LobattoDAEInputError`); traced
         ones (under ``jit``/``vmap``) that have a NaN, a time outside ``t_span`` or are unsorted
         give the status ``Result.INVALID_T_EVAL`` instead of success.
+
+    Raises
+    ------
+    LobattoDAEInputError
+        Options :func:`~lobattodae.solve` would refuse, checked before the run: always
+        ``max_steps`` (a positive integer up to ``2·10⁷``), ``controller``, ``checkpoints``,
+        ``differentiable`` (a bool) and ``t_eval_rows``; where ``t_span`` is concrete (not
+        traced under ``jit``/``vmap``) also ``t_span``, and ``t_eval`` and ``rtol``, ``atol``,
+        ``first_step``, ``max_step`` where they are concrete too.
     """
     _check_options(t_span, rtol, atol, first_step, max_step, controller, max_steps, t_eval)
     checkpoints = resolve_checkpoints(checkpoints, max_steps)

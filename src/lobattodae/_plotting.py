@@ -29,12 +29,21 @@ def plot_convergence(study, axes=None, components=("q", "p", "lam")):
     Parameters
     ----------
     study : ConvergenceStudy
+        What :func:`~lobattodae.convergence_study` returned.
     axes : sequence of matplotlib Axes, optional
         One per component; created (in one figure) when omitted.
+    components : sequence of {"q", "p", "lam"}, optional
+        The components to draw, one panel each (default all three).
 
     Returns
     -------
     list of Axes
+        The panels, in the order of ``components``.
+
+    Raises
+    ------
+    ImportError
+        matplotlib is not installed.
     """
     plt = _plt()
     if axes is None:
@@ -65,7 +74,25 @@ def plot_convergence(study, axes=None, components=("q", "p", "lam")):
 
 
 def plot_solution(sol, axes=None):
-    """q, p and λ against t."""
+    """q, p and λ against t, one panel each, a line per component.
+
+    Parameters
+    ----------
+    sol : Solution
+        The run to draw (its ``t``, ``q``, ``p``, ``lam``).
+    axes : sequence of three matplotlib Axes, optional
+        The panels for q, p and λ; created (in one figure, sharing the t axis) when omitted.
+
+    Returns
+    -------
+    list of Axes
+        The three panels.
+
+    Raises
+    ------
+    ImportError
+        matplotlib is not installed.
+    """
     plt = _plt()
     if axes is None:
         fig, axes = plt.subplots(3, 1, figsize=(7, 7), sharex=True, constrained_layout=True)
@@ -245,6 +272,14 @@ def plot(
         The axes by panel name: ``"solution"``, ``"constraint"``, ``"invariants"`` (when
         there are invariants), ``"step"`` (adaptive runs with every step in the rows),
         ``"newton"``, ``"path"`` (with a projection), ``"summary"``, ``"histogram"``.
+
+    Raises
+    ------
+    ValueError
+        ``labels`` does not name every coordinate, or ``projection`` is a string other than
+        ``"auto"``.
+    ImportError
+        matplotlib is not installed.
     """
     from ._diagnostics import _over_trajectory, invariant_error
 

@@ -88,8 +88,8 @@ _MESSAGES = {
     ),
     Result.INTERRUPTED: "The integration was interrupted; the computed prefix is returned.",
     Result.STEP_SIZE_TOO_SMALL: (
-        "The step size fell below 1e-14·|t| (the error test or Newton's method kept failing); the "
-        "problem may be singular there, or the tolerances are too tight."
+        "The step size fell below 1e-14·max(|t|, |t1 - t0|) (the error test or Newton's method kept "
+        "failing); the problem may be singular there, or the tolerances are too tight."
     ),
     Result.MAX_STEPS: "The step limit (max_steps) was reached before the end of the interval.",
     Result.EVENT: "A terminal event occurred.",

@@ -63,6 +63,7 @@ class Solution:
     result : Result
         ``SUCCESSFUL``, ``EVENT`` (a terminal event) or the reason the run stopped early.
     message : str
+        The reason in words (``result.message``).
     stats : dict
         Counters and per-row diagnostics; the keys are documented in :data:`STATS`
         (``lobattodae.STATS``). When the solve stopped early the arrays hold the computed prefix.
@@ -74,9 +75,22 @@ class Solution:
         ``sol(t, layout="scipy")`` returns scipy's stacked ``(2n + m, k)`` layout.
     problem, method, args
         What was solved, for diagnostics.
-
-    The views in ``scipy.integrate.solve_ivp``'s layout and vocabulary: :attr:`y`,
-    :attr:`y_events`, :attr:`status`, :attr:`nfev`, :attr:`njev`, :attr:`nlu`.
+    y : ndarray, shape (2n + m, k)
+        ``[q; p; λ]`` stacked as ``scipy.integrate.solve_ivp`` lays out ``y``, one column per
+        time (a view computed on access, like the five below).
+    y_events : list of ndarray or None
+        One (k_j, 2n + m) array per event function, the rows ``[q, p, λ]`` at its zeros, as
+        ``solve_ivp``'s ``y_events`` (None without events).
+    status : int
+        scipy's status: 0 the end of the interval was reached, 1 a terminal event, −1 the run
+        stopped early (the reason is ``result``).
+    nfev : int
+        Evaluations of the right-hand side (f, g) at a stage point in Newton's iterations
+        (``stats["n_newton"]`` × s).
+    njev : int
+        Jacobians of the stage equations (``stats["n_jacobians"]``).
+    nlu : int
+        LU factorisations, one per Jacobian (``stats["n_jacobians"]``).
 
     Examples
     --------

@@ -135,7 +135,7 @@ def solve(
         steps), with constant or reversible steps those rows come from the dense output. Sign changes are looked
         for between the step's nodes (step points and stage points), so two zeros inside one
         step are found when a node lies between them; closer pairs need a smaller
-        ``max_step``/``dt`` (:mod:`lobattodae._events`). A zero exactly at t0 counts as in
+        ``max_step``/``dt``. A zero exactly at t0 counts as in
         scipy (when the function then moves in the event's direction; a terminal one ends the
         run at t0).
     save_every : int or 'final', optional
@@ -146,8 +146,9 @@ def solve(
     args : pytree, optional
         Passed to the problem functions.
     throw : bool
-        If True (default) a failed run raises :class:`NewtonFailure`; otherwise the computed
-        prefix is returned with ``success=False`` and the reason in ``result``.
+        If True (default) a failed step raises :class:`NewtonFailure`; otherwise the computed
+        prefix is returned with ``success=False`` and the reason in ``result``. A run that
+        ends early at ``max_steps`` or on Ctrl-C returns its prefix either way.
     project_initial : bool
         Replace ``p0`` by its least-squares projection onto the constraint
         {p : φ(t0, q0, p) = 0} (always, to round-off) instead of rejecting inconsistent values.
@@ -197,9 +198,12 @@ def solve(
         :class:`SingularConstraintError`, :class:`CheckpointError`.
     TypeError
         ``method`` is not a :class:`LobattoIIIAIIIB`.
+    CheckpointWriteError
+        A checkpoint could not be saved during the run and ``throw`` is True; it carries the
+        computed prefix as ``.solution``.
     NewtonFailure
-        A step failed and ``throw`` is True (the default), with ``.step``, ``.t`` and
-        ``.reason``.
+        A step failed (Newton's iteration, a step size too small, a non-finite value) and
+        ``throw`` is True (the default), with ``.step``, ``.t`` and ``.reason``.
     """
     check_float64()
     _refuse_tracers(t_span=t_span, q0=q0, p0=p0, lam0=lam0, args=args, n_steps=n_steps, dt=dt, rtol=rtol, atol=atol)

@@ -169,22 +169,43 @@ class Example:
 
     @property
     def t0(self) -> float:
+        """Initial time, ``t_span[0]``."""
         return self.t_span[0]
 
     @property
     def t_end(self) -> float:
+        """Final time, ``t_span[1]``."""
         return self.t_span[1]
 
     @property
     def has_exact(self) -> bool:
+        """Whether the exact solution is known (``exact`` is not None)."""
         return self.exact is not None
 
     # --------------------------------------------------------------------- methods
     def expected_order(self, component: str, s: int) -> float | None:
         """The order expected for ``component`` with the s-stage pair on this example.
 
-        the method's proven order (``LobattoPair.order()``) unless ``expected_order_overrides`` says otherwise;
-        ``None`` means "exact up to round-off, no order measurable".
+        Parameters
+        ----------
+        component : {"q", "p", "lam"}
+            The solution component.
+        s : int
+            The number of stages, ``s >= 2``.
+
+        Returns
+        -------
+        float or None
+            The method's proven order (``LobattoPair.order()``) unless
+            ``expected_order_overrides`` says otherwise; ``None`` means "exact up to
+            round-off, no order measurable".
+
+        Raises
+        ------
+        ValueError
+            An unknown ``component``, or ``s < 2``.
+        TypeError
+            ``s`` is not an integer.
         """
         if component not in COMPONENTS:
             raise ValueError(f"component must be one of {COMPONENTS}; got {component!r}")
@@ -197,8 +218,22 @@ class Example:
         ``"phi"``), of the hidden constraint at ``(t, q, p, lam)`` (``"hidden"``) and
         of ``lam`` minus :func:`~lobattodae.consistent_lambda` (``"lam"``).
 
-        Without arguments, at the initial values ``(t0, q0, p0, lam0)``. Compiled once per
-        problem and shapes.
+        Compiled once per problem and shapes.
+
+        Parameters
+        ----------
+        t : float, optional
+            Time (default ``t0``).
+        q, p : array_like, shape (n,), optional
+            The state (default ``q0``, ``p0``).
+        lam : array_like, shape (m,), optional
+            The multiplier (default ``lam0``).
+
+        Returns
+        -------
+        dict
+            ``{"phi": ..., "hidden": ..., "lam": ...}``, floats; without arguments the
+            residuals of the initial values ``(t0, q0, p0, lam0)``.
         """
         t = self.t0 if t is None else t
         q = self.q0 if q is None else q
@@ -213,8 +248,27 @@ class Example:
         }
 
     def invariant_values(self, t, q, p) -> dict[str, np.ndarray]:
-        """The first integrals along a trajectory (time-major ``q``, ``p`` of shape
-        ``(N, n)``, ``t`` of shape ``(N,)``), as NumPy arrays of shape ``(N,)``."""
+        """The first integrals along a trajectory.
+
+        Parameters
+        ----------
+        t : array_like, shape (N,)
+            Times.
+        q, p : array_like, shape (N, n)
+            The trajectory, time-major (e.g. ``sol.q``, ``sol.p`` of a
+            :class:`~lobattodae.Solution`).
+
+        Returns
+        -------
+        dict
+            Name (``"energy"`` and the others of ``invariants``) -> NumPy array of shape
+            ``(N,)``.
+
+        Raises
+        ------
+        ValueError
+            The shapes do not fit together.
+        """
         t = jnp.asarray(t, dtype=jnp.float64)
         q = jnp.asarray(q, dtype=jnp.float64)
         p = jnp.asarray(p, dtype=jnp.float64)

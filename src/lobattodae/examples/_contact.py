@@ -16,9 +16,16 @@ __all__ = ["ContactParams", "contact_oscillator"]
 
 
 class ContactParams(NamedTuple):
-    """Coupling ``epsilon`` and the amplitude ``kappa`` of ``S = kappa·cos z``
-    (``kappa = 0``: the reversible McLachlan-Perlmutter oscillator; 1: the
-    non-reversible variant)."""
+    """The parameters of :func:`contact_oscillator` (its ``args``).
+
+    Attributes
+    ----------
+    epsilon : float
+        Coupling ε.
+    kappa : float
+        The amplitude of ``S = kappa·cos z`` (``kappa = 0``: the reversible
+        McLachlan-Perlmutter oscillator; 1: the non-reversible variant).
+    """
 
     epsilon: float
     kappa: float
@@ -94,6 +101,14 @@ def contact_oscillator(
     Returns
     -------
     Example
+        The oscillator, named ``"contact"`` or ``"contact-nonreversible"``.
+
+    Raises
+    ------
+    ValueError
+        A parameter that is not finite, ``energy_y`` or ``t_end`` not positive, or no
+        ``x0 > 0`` with ``H = energy`` (``z0² ≥ 2 (energy - energy_y)``, or
+        ``1 + ε z0² ≤ 0``).
     """
     epsilon = finite("epsilon", epsilon)
     energy = finite("energy", energy)

@@ -14,7 +14,17 @@ __all__ = ["KnifeEdgeParams", "knife_edge"]
 
 
 class KnifeEdgeParams(NamedTuple):
-    """Mass ``m``, moment of inertia ``J``, in-plane gravity ``g = g0 sin α``."""
+    """The parameters of :func:`knife_edge` (its ``args``).
+
+    Attributes
+    ----------
+    m : float
+        Mass.
+    J : float
+        Moment of inertia about the vertical axis.
+    g : float
+        In-plane gravity ``g = g0 sin α`` along ``-y``.
+    """
 
     m: float
     J: float
@@ -112,6 +122,12 @@ def knife_edge(
     Returns
     -------
     Example
+        ``"knife-edge"``, with the exact solution and the first integrals H and ``p_θ``.
+
+    Raises
+    ------
+    ValueError
+        ``m``, ``J`` or ``t_end`` not positive and finite, or another parameter not finite.
     """
     params = KnifeEdgeParams(m=positive("m", m), J=positive("J", J), g=finite("g", g))
     omega, theta0, v0, x0, y0 = (finite(k, val) for k, val in (

@@ -14,7 +14,13 @@ __all__ = ["ParticleParams", "nonholonomic_particle"]
 
 
 class ParticleParams(NamedTuple):
-    """Parameters of the nonholonomic particle: ``V = stiffness/2 · (x² + y²)``."""
+    """The parameters of :func:`nonholonomic_particle` (its ``args``).
+
+    Attributes
+    ----------
+    stiffness : float
+        The spring constant of ``V = stiffness/2 · (x² + y²)`` (0 for the free particle).
+    """
 
     stiffness: float
 
@@ -101,6 +107,12 @@ def nonholonomic_particle(
     Returns
     -------
     Example
+        ``"particle"`` (free, with the exact solution) or ``"particle-harmonic"``.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``potential``, a parameter that is not finite, or ``t_end`` not positive.
     """
     x0, y0, z0, c, v = (finite(k, val) for k, val in
                         (("x0", x0), ("y0", y0), ("z0", z0), ("c", c), ("v", v)))

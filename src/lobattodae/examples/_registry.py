@@ -82,11 +82,15 @@ def get_example(name: str, **params) -> Example:
     Returns
     -------
     Example
+        The example, built by its factory (e.g. :func:`knife_edge`).
 
     Raises
     ------
     ValueError
-        For an unknown name; the message lists the valid names.
+        For an unknown name (the message lists the valid names), or a parameter the
+        factory refuses.
+    TypeError
+        A keyword parameter the factory does not have.
     """
     try:
         factory = EXAMPLES[name]
@@ -98,5 +102,11 @@ def get_example(name: str, **params) -> Example:
 
 
 def list_examples() -> list[tuple[str, str]]:
-    """``(name, one-line description)`` for every registered example, in a fixed order."""
+    """The registered examples, in a fixed order.
+
+    Returns
+    -------
+    list of (str, str)
+        ``(name, one-line description)`` for every name of :data:`EXAMPLES`.
+    """
     return [(name, description) for name, (_, description) in _TABLE.items()]

@@ -30,8 +30,19 @@ __all__ = [
 
 # =============================================================================== vertical
 class VerticalDiskParams(NamedTuple):
-    """Mass ``m``, radius ``R``, inertia ``I`` about the axle (rolling angle θ) and
-    ``J`` about the vertical diameter (heading φ)."""
+    """The parameters of :func:`vertical_rolling_disk` (its ``args``).
+
+    Attributes
+    ----------
+    m : float
+        Mass.
+    R : float
+        Radius.
+    I : float
+        Moment of inertia about the axle (rolling angle θ).
+    J : float
+        Moment of inertia about the vertical diameter (heading φ).
+    """
 
     m: float
     R: float
@@ -145,6 +156,14 @@ def vertical_rolling_disk(
     Returns
     -------
     Example
+        ``"vertical-disk"``, with the exact solution and the first integrals H, ``p_φ``
+        and ``p_θ``.
+
+    Raises
+    ------
+    ValueError
+        ``m``, ``R``, ``I``, ``J`` or ``t_end`` not positive and finite, or another
+        parameter not finite.
     """
     params = VerticalDiskParams(
         m=positive("m", m), R=positive("R", R), I=positive("I", I), J=positive("J", J)
@@ -177,8 +196,21 @@ def vertical_rolling_disk(
 
 # ================================================================================ falling
 class FallingDiskParams(NamedTuple):
-    """Mass ``m``, radius ``R``, gravity ``g``, inertias ``I1`` (about a diameter) and
-    ``I3`` (about the axis)."""
+    """The parameters of :func:`falling_rolling_disk` (its ``args``).
+
+    Attributes
+    ----------
+    m : float
+        Mass.
+    R : float
+        Radius.
+    g : float
+        Gravity.
+    I1 : float
+        Moment of inertia about a diameter.
+    I3 : float
+        Moment of inertia about the axis.
+    """
 
     m: float
     R: float
@@ -259,7 +291,27 @@ def _momentum(theta, phi, qdot, params):
 def steady_spin_rate(params: FallingDiskParams, theta0: float, Omega: float) -> float:  # noqa: N803
     """The spin rate ``ω_s`` of steady circular rolling at tilt ``θ0`` and heading rate
     ``Ω``, from ``(I1 - I3 - mR²) Ω² sin θ0 cos θ0 + (I3 + mR²) Ω ω_s cos θ0
-    - m g R sin θ0 = 0``."""
+    - m g R sin θ0 = 0``.
+
+    Parameters
+    ----------
+    params : FallingDiskParams
+        The disk.
+    theta0 : float
+        The tilt from the vertical.
+    Omega : float
+        The heading rate ``φ'``.
+
+    Returns
+    -------
+    float
+        ``ω_s = ψ'``.
+
+    Raises
+    ------
+    ValueError
+        ``Omega == 0`` or ``cos θ0`` is 0 (to within 1e-12): no steady rolling.
+    """
     m, R, g, I1, I3 = params
     st, ct = math.sin(theta0), math.cos(theta0)
     if Omega == 0.0 or abs(ct) < 1e-12:
@@ -353,6 +405,14 @@ def falling_rolling_disk(
     Returns
     -------
     Example
+        ``"falling-disk"`` (steady, with the exact solution) or ``"falling-disk-general"``.
+
+    Raises
+    ------
+    ValueError
+        ``m``, ``R``, ``I1``, ``I3`` or ``t_end`` not positive and finite, another
+        parameter not finite, or (steady) no steady rolling for ``theta0`` and ``Omega``
+        (:func:`steady_spin_rate`).
     """
     params = FallingDiskParams(
         m=positive("m", m), R=positive("R", R), g=finite("g", g),

@@ -14,8 +14,17 @@ __all__ = ["SleighParams", "chaplygin_sleigh"]
 
 
 class SleighParams(NamedTuple):
-    """Mass ``m``, moment of inertia ``I`` about the centre of mass, and the distance
-    ``a`` of the knife edge's contact point behind the centre of mass."""
+    """The parameters of :func:`chaplygin_sleigh` (its ``args``).
+
+    Attributes
+    ----------
+    m : float
+        Mass.
+    I : float
+        Moment of inertia about the centre of mass.
+    a : float
+        The distance of the knife edge's contact point behind the centre of mass.
+    """
 
     m: float
     I: float  # noqa: E741
@@ -141,6 +150,13 @@ def chaplygin_sleigh(
     Returns
     -------
     Example
+        ``"sleigh"``, with the exact solution and the energy as first integral.
+
+    Raises
+    ------
+    ValueError
+        ``m``, ``I``, ``a`` or ``t_end`` not positive and finite, or another parameter not
+        finite.
     """
     params = SleighParams(m=positive("m", m), I=positive("I", I), a=positive("a", a))
     theta0, v0, omega0, x0, y0 = (finite(k, val) for k, val in (
