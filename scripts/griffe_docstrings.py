@@ -57,6 +57,8 @@ _HOMES = {
     "lobattodae.mechanics": "lobattodae.mechanics",
     "lobattodae.examples": "lobattodae.examples",
     "lobattodae._conditions": "lobattodae.conditions",
+    "lobattodae._condition_checks": "lobattodae.conditions",
+    "lobattodae._tableau_report": "lobattodae.conditions",
     "lobattodae.conditions": "lobattodae.conditions",
 }
 

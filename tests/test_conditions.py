@@ -1,4 +1,4 @@
-"""Tests of the order conditions, hypotheses and stability (lobattodae._conditions)."""
+"""Tests of the order conditions, hypotheses and stability (lobattodae.conditions: _conditions, _condition_checks, _tableau_report)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from lobattodae._conditions import (
+from lobattodae.conditions import (
     DEFAULT_TOL,
     TableauReport,
     b_error,

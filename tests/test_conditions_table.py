@@ -15,7 +15,9 @@ import pytest
 from numpy.polynomial import Legendre, Polynomial
 
 from lobattodae import _conditions as cond
-from lobattodae._conditions import _ASSUMPTIONS, DEFAULT_TOL, TableauReport, _test_polynomial
+from lobattodae import conditions
+from lobattodae._conditions import _ASSUMPTIONS, DEFAULT_TOL, _test_polynomial
+from lobattodae.conditions import TableauReport
 from lobattodae._tableau import lobatto_pair
 
 PAIR_NAMES = ("CC_hat", "C_hatC", "DD_hat", "D_hatD")
@@ -130,9 +132,9 @@ def test_public_wrappers_delegate_to_their_row():
     suffix = {"B": "b", "C": "c", "D": "d", "CC_hat": "cc_hat", "C_hatC": "c_hat_c",
               "DD_hat": "dd_hat", "D_hatD": "d_hat_d"}  # fmt: skip
     for name, row in _ASSUMPTIONS.items():
-        error = getattr(cond, f"{suffix[name]}_error")
-        satisfies = getattr(cond, f"satisfies_{suffix[name]}")
-        max_order = getattr(cond, f"max_order_{suffix[name]}")
+        error = getattr(conditions, f"{suffix[name]}_error")
+        satisfies = getattr(conditions, f"satisfies_{suffix[name]}")
+        max_order = getattr(conditions, f"max_order_{suffix[name]}")
         assert list(inspect.signature(error).parameters) == [*row.args, "k", "basis"]
         assert list(inspect.signature(satisfies).parameters) == [*row.args, "k", "tol"]
         assert list(inspect.signature(max_order).parameters) == [*row.args, "cap", "tol"]
@@ -156,5 +158,5 @@ def test_decisions_use_the_legendre_form():
     k = 2 * 12 - 1
     assert cond.b_error(pair.b, pair.c, k) < DEFAULT_TOL
     assert cond.b_error(pair.b, pair.c, k, basis="legendre") > 1e-6
-    assert not cond.satisfies_b(pair.b, pair.c, k)
-    assert cond.max_order_b(pair.b, pair.c) == 2 * 12 - 2
+    assert not conditions.satisfies_b(pair.b, pair.c, k)
+    assert conditions.max_order_b(pair.b, pair.c) == 2 * 12 - 2

@@ -17,7 +17,7 @@ _jax.config.update("jax_enable_x64", True)
 
 from ._cache import enable_compilation_cache  # noqa: E402
 from ._io import CheckpointError, CheckpointWriteError, EnsembleFileError  # noqa: E402
-from ._conditions import TableauReport, check_tableau  # noqa: E402
+from ._tableau_report import TableauReport, check_tableau  # noqa: E402
 from ._cpu import set_cpu_threads  # noqa: E402
 from ._convergence import ConvergenceStudy, convergence_study, observed_order  # noqa: E402
 from ._diagnostics import constraint_residual, energy_error, invariant_error, invariant_values  # noqa: E402

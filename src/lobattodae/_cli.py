@@ -302,7 +302,7 @@ def _cmd_examples(ns) -> int:
 
 
 def _cmd_tableau(ns) -> int:
-    from ._conditions import check_tableau
+    from ._tableau_report import check_tableau
     from ._tableau import lobatto_pair
 
     pair = lobatto_pair(ns.s)

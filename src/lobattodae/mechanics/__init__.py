@@ -55,13 +55,8 @@ from ._rigid import (
     quaternion_rates,
     rotation_matrix,
 )
-from ._model import (
-    LagrangianDAE,
-    LagrangianModel,
-    SymbolicParts,
-    from_lagrangian,
-    from_lagranges_method,
-)
+from ._builders import from_lagrangian, from_lagranges_method
+from ._model import LagrangianDAE, LagrangianModel, SymbolicParts
 
 __all__ = [
     "LagrangianDAE",

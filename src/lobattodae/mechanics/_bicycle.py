@@ -72,7 +72,8 @@ import numpy as np
 import sympy as sp
 from sympy.physics.mechanics import ReferenceFrame, Vector, dynamicsymbols
 
-from ._model import LagrangianModel, from_lagrangian
+from ._builders import from_lagrangian
+from ._model import LagrangianModel
 
 __all__ = [
     "BENCHMARK",

@@ -25,7 +25,9 @@ from typing import Mapping
 import numpy as np
 import sympy as sp
 
-from ._model import LagrangianModel, _err, from_lagrangian, load_forces
+from ._builders import from_lagrangian, load_forces
+from ._model import LagrangianModel
+from ._parsing import _err
 
 __all__ = ["from_kanes_method", "from_system"]
 

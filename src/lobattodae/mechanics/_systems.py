@@ -16,7 +16,8 @@ import sympy as sp
 from sympy.physics.mechanics import dynamicsymbols
 
 from ._bicycle import whipple_bicycle
-from ._model import LagrangianModel, from_lagrangian
+from ._builders import from_lagrangian
+from ._model import LagrangianModel
 from ._systems3d import (
     RATTLEBACK_KANE_LEVINSON,
     chaplygin_sphere,

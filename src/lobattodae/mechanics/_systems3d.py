@@ -21,7 +21,8 @@ import numpy as np
 import sympy as sp
 from sympy.physics.mechanics import dynamicsymbols
 
-from ._model import LagrangianModel, from_lagrangian
+from ._builders import from_lagrangian
+from ._model import LagrangianModel
 from ._rigid import quaternion_body, quaternion_rates, rotation_matrix
 
 __all__ = [
