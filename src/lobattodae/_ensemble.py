@@ -433,7 +433,7 @@ def _mode(method, t0, h, n_steps, t_span, rtol, atol, first_step, max_step, max_
                                            "n_steps the steps are constant.")
         t0, steps = ConstantSteps.grid(t0, h, n_steps)
         return _Mode(steps.n, None, None, False, None, (np.float64(t0), np.float64(steps.h)),
-                     {"mode": "constant", "t0": t0, "h": steps.h, "n_steps": steps.n}, steps.n + 1)
+                     {"mode": "constant", "t0": t0, "steps": steps.identity()}, steps.n + 1)
     if h is not None or n_steps is not None or t0 is not None:
         raise LobattoDAEInputError(
             "give either t_span (error-controlled steps) or h and n_steps (constant steps), not both; t0 is t_span[0]."
@@ -446,11 +446,8 @@ def _mode(method, t0, h, n_steps, t_span, rtol, atol, first_step, max_step, max_
     t_eval = saving.t_eval
     numbers = tuple(np.float64(x) for x in (span.t0, span.t1, steps.rtol, steps.atol, steps.first_step,
                                              steps.max_step)) + (t_eval,)
-    settings = {"mode": "adaptive", "t_span": span.identity(), "rtol": steps.rtol, "atol": steps.atol,
-                "first_step": steps.first_step, "max_step": repr(steps.max_step), "max_steps": steps.max_steps,
-                "controller": repr(steps.controller),
-                "t_eval": None if t_eval is None else hashlib.sha256(t_eval.tobytes()).hexdigest(),
-                "t_eval_rows": t_eval_rows}
+    settings = {"mode": "adaptive", "t_span": span.identity(), "steps": steps.identity(), "max_steps": steps.max_steps,
+                "saving": saving.identity()}
     rows = steps.max_steps + 1 if t_eval is None else t_eval.size
     return _Mode(None, steps.max_steps, steps.controller, t_eval is not None, saving.rows, numbers, settings, rows)
 

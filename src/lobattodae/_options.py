@@ -433,8 +433,11 @@ class Saving:
                       land_on_events=self.land_on_events)
 
     def identity(self) -> list:
+        """What a checkpoint or ensemble file of the run must match: the kept rows, the dense
+        output, the events (their code) and, with ``t_eval``, how its rows are made."""
+        made = [self.rows] if self.t_eval is not None else []  # no entry without t_eval: older files still match
         return [self.dense, self.every, None if self.t_eval is None else fingerprint_arrays(self.t_eval),
-                [fingerprint_callable(ev.fn) + f"/{ev.terminal}/{ev.direction}" for ev in self.events]]
+                [fingerprint_callable(ev.fn) + f"/{ev.terminal}/{ev.direction}" for ev in self.events], *made]
 
 
 def _check_save_every(save_every) -> int:

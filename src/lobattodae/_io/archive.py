@@ -102,6 +102,31 @@ def read_npy(data: bytes) -> np.ndarray:
     return np.lib.format.read_array(fp, allow_pickle=False, max_header_size=MAX_NPY_HEADER)
 
 
+def stored_members(zf: zipfile.ZipFile, file_size: int) -> dict[str, zipfile.ZipInfo]:
+    """The ``.npy`` members of an archive as NumPy's ``savez`` writes them (stored, not compressed
+    or encrypted, none larger than the file), by name without the suffix.
+
+    Raises
+    ------
+    ValueError
+        A member that is not a ``.npy`` file, a duplicate, a compressed or encrypted one, or one
+        that claims more bytes than the file has (the reason is the message).
+    """
+    members: dict[str, zipfile.ZipInfo] = {}
+    for info in zf.infolist():
+        if not info.filename.endswith(".npy"):
+            raise ValueError(f"unexpected archive member {info.filename!r}")
+        key = info.filename[: -len(".npy")]
+        if key in members:
+            raise ValueError(f"duplicate entry {key!r}")
+        if info.compress_type != zipfile.ZIP_STORED or info.flag_bits & 0x1:
+            raise ValueError(f"entry {key!r} is compressed or encrypted")
+        if info.file_size > file_size:
+            raise ValueError(f"entry {key!r} is larger than the file")
+        members[key] = info
+    return members
+
+
 class Reader:
     """The members of one checkpoint archive, read and checked one at a time; every failure is a
     :class:`CheckpointError` about the checkpoint ``path`` (``part``: which of its files, when not
@@ -115,18 +140,10 @@ class Reader:
         self.path = path
         self.part = part
         self.zf = zf
-        self.members: dict[str, zipfile.ZipInfo] = {}
-        for info in zf.infolist():
-            if not info.filename.endswith(".npy"):
-                raise self.corrupt(f"unexpected archive member {info.filename!r}")
-            key = info.filename[: -len(".npy")]
-            if key in self.members:
-                raise self.corrupt(f"duplicate entry {key!r}")
-            if info.compress_type != zipfile.ZIP_STORED or info.flag_bits & 0x1:
-                raise self.corrupt(f"entry {key!r} is compressed or encrypted")
-            if info.file_size > file_size:
-                raise self.corrupt(f"entry {key!r} is larger than the file")
-            self.members[key] = info
+        try:
+            self.members = stored_members(zf, file_size)
+        except ValueError as exc:
+            raise self.corrupt(str(exc)) from None
 
     def corrupt(self, reason: str) -> CheckpointError:
         """The error for a checkpoint that is corrupt for ``reason``."""

@@ -34,7 +34,6 @@ import re
 import stat
 import warnings
 import zipfile
-import zlib
 from collections.abc import Sequence
 from typing import BinaryIO
 
@@ -42,6 +41,7 @@ import numpy as np
 
 from .._errors import LobattoDAEInputError
 from . import atomic
+from .archive import Reader, read_npy, stored_members
 
 __all__ = [
     "FILE_FORMAT",
@@ -68,8 +68,7 @@ FILE_GLOB = "ensemble-p*-b*.npz"
 
 _FILE_RE = re.compile(r"^ensemble-p(\d+)-b(\d+)\.npz$")
 #: Everything NumPy's and zipfile's readers may raise on a damaged file.
-_READ_ERRORS = (OSError, ValueError, EOFError, KeyError, IndexError, TypeError, OverflowError, zipfile.BadZipFile,
-                zipfile.LargeZipFile, NotImplementedError, RuntimeError, zlib.error)
+_READ_ERRORS = Reader.ERRORS  # everything parsing a damaged or foreign archive may raise
 
 
 class EnsembleFileError(LobattoDAEInputError):
@@ -127,12 +126,13 @@ def read_block(path: str, names: Sequence[str] | None = None) -> tuple[dict, dic
     ``names`` (default: all of them) besides ``meta``. Raises :class:`EnsembleFileError`."""
     with _open_regular(path) as fh:
         try:
-            with np.load(fh, allow_pickle=False) as z:
-                files = set(z.files)
+            with zipfile.ZipFile(fh) as zf:  # each member read by read_npy: no header's sizes trusted
+                members = stored_members(zf, os.fstat(fh.fileno()).st_size)
+                files = set(members)
                 if "meta" not in files:
                     raise _file_error(path, "is not a lobattodae ensemble file (no 'meta' entry)",
                                       "remove it from the directory")
-                raw_meta = z["meta"]
+                raw_meta = read_npy(zf.read(members["meta"]))
                 meta = json.loads(str(raw_meta))
                 if not isinstance(meta, dict) or meta.get("format") != FILE_FORMAT:
                     raise _file_error(path, "is not a lobattodae ensemble file (format "
@@ -143,7 +143,7 @@ def read_block(path: str, names: Sequence[str] | None = None) -> tuple[dict, dic
                                       f"lobattodae reads version {FILE_VERSION}", "run the ensemble again")
                 if "digests" not in files:
                     raise _file_error(path, "is damaged: it has no 'digests' entry")
-                digests = json.loads(str(z["digests"]))
+                digests = json.loads(str(read_npy(zf.read(members["digests"]))))
                 if not isinstance(digests, dict) or set(digests) != files - {"digests"}:
                     raise _file_error(path, "is damaged: its 'digests' entry does not list its arrays")
                 arrays = {"meta": raw_meta}
@@ -151,7 +151,7 @@ def read_block(path: str, names: Sequence[str] | None = None) -> tuple[dict, dic
                     if name not in arrays:
                         if name not in files:
                             raise _file_error(path, f"is damaged: it has no entry {name!r}")
-                        arrays[name] = z[name]
+                        arrays[name] = read_npy(zf.read(members[name]))
                 for name, x in arrays.items():
                     if _array_digest(name, x) != digests[name]:
                         raise _file_error(path, f"is damaged: its entry {name!r} does not match the digest "
