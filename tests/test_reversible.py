@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae._controllers import ControlOptions, ReversibleStepSize, StepReport, phase_space_speed
+from lobattodae._controllers import ControlOptions, StepReport
+from lobattodae._reversible import ReversibleStepSize, phase_space_speed
 from lobattodae._chunks import CHUNK, init_host, run_host
 from lobattodae._loop import Output
 from lobattodae.examples import get_example

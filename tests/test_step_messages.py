@@ -14,7 +14,7 @@ import pytest
 import lobattodae as L
 from helpers import FALL, FALL_Q0, FALL_P0
 from lobattodae import _cli
-from lobattodae._controllers import phase_space_speed
+from lobattodae._reversible import phase_space_speed
 
 METHOD = L.LobattoIIIAIIIB(stages=3)
 Q0, P0 = FALL_Q0, FALL_P0

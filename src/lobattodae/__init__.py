@@ -44,7 +44,8 @@ from ._problem import (  # noqa: E402
 )
 from ._results import Result  # noqa: E402
 from ._integrate import AdaptiveResult, IntegrateResult, integrate, integrate_adaptive  # noqa: E402
-from ._controllers import PIController, ReversibleStepSize  # noqa: E402
+from ._controllers import PIController  # noqa: E402
+from ._reversible import ReversibleStepSize  # noqa: E402
 from ._dense import DenseOutput  # noqa: E402
 from ._events import Event  # noqa: E402
 from ._solution import STATS, Solution  # noqa: E402

@@ -31,7 +31,8 @@ import numpy as np
 
 from ._io import checkpoint as _checkpoint
 from ._io import fingerprint_arrays, fingerprint_callable
-from ._controllers import ATOL, MIN_RELATIVE_STEP, RTOL, ConstantStepSize, ControlOptions, PIController, ReversibleStepSize
+from ._controllers import ATOL, MIN_RELATIVE_STEP, RTOL, ConstantStepSize, ControlOptions, PIController
+from ._reversible import ReversibleStepSize
 from ._errors import LobattoDAEInputError
 from ._events import Event, as_events
 from ._chunks import CHUNK

@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 
 from ._chunks import Progress
-from ._controllers import PIController, ReversibleStepSize
+from ._controllers import PIController
+from ._reversible import ReversibleStepSize
 from ._dense import DenseOutput, stacked
 from ._errors import NewtonFailure
 from ._loop import State
