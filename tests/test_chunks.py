@@ -1,4 +1,5 @@
-"""The host-side chunk driver (lobattodae._chunks): the loop state packed into two vectors comes back unchanged."""
+"""The host-side chunk driver (lobattodae._chunks): the loop state packed into two vectors comes
+back unchanged, and a run in chunks gives the numbers of one run."""
 
 import jax
 import jax.numpy as jnp
@@ -6,8 +7,8 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae._controllers import ControlOptions, PIController
-from lobattodae._chunks import StatePacking, init_host
+from lobattodae._controllers import ConstantStepSize, ControlOptions, PIController
+from lobattodae._chunks import StatePacking, init_host, row_capacity, run_host, start_host
 from lobattodae._loop import Output
 from lobattodae.examples import get_example
 
@@ -39,3 +40,68 @@ def test_the_loop_state_round_trips():
 def test_unsupported_dtypes_are_refused():
     with pytest.raises(TypeError, match="float32"):
         StatePacking.of({"x": jnp.zeros(2, jnp.float32)})
+
+
+# -- runs in chunks -------------------------------------------------------------------------------------
+def _sixty_steps(knife):
+    """``(t0, t1, options, q0, p0, lam0)`` of 60 constant steps of the knife edge on [0, 3]."""
+    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+    return f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0), f64(knife.p0), f64(knife.lam0)
+
+
+def test_chunks_give_the_same_numbers_as_one_run(knife):
+    m = L.LobattoIIIAIIIB(stages=3)
+    c = ConstantStepSize()
+    out = Output()
+    state, packing = init_host(knife.problem, m, c, out, *_sixty_steps(knife), knife.args)
+    whole, chunk = run_host(knife.problem, m, c, out, packing, state, knife.args, 64)
+    rec = chunk.rows
+    assert int(chunk.n_rows) == 60 and np.all(np.isnan(np.asarray(rec.q[60:])))
+    part = state
+    rows = []
+    for _ in range(4):
+        part, r = run_host(knife.problem, m, c, out, packing, part, knife.args, 16)
+        rows.append(np.asarray(r.rows.q)[: int(r.n_rows)])
+    np.testing.assert_array_equal(np.concatenate(rows), np.asarray(rec.q)[:60])
+    np.testing.assert_array_equal(np.asarray(part.q), np.asarray(whole.q))
+
+
+def test_the_first_chunk_initialises_the_state_it_would_get_from_init_host(knife):
+    """start_host (init and first chunk in one compiled call) gives the numbers, bit for bit,
+    of init_host followed by run_host, and hands on a state the next run_host continues from."""
+    m = L.LobattoIIIAIIIB(stages=3)
+    c = ConstantStepSize()
+    out = Output()
+    start = _sixty_steps(knife)
+    state, packing = init_host(knife.problem, m, c, out, *start, knife.args)
+    ref_state, ref = run_host(knife.problem, m, c, out, packing, state, knife.args, 64)
+    first, chunk, packing2 = start_host(knife.problem, m, c, out, *start, knife.args, 32)
+    assert packing2 == packing and int(chunk.n_rows) == 32 and int(first.n_accepted) == 32
+    rest, chunk2 = run_host(knife.problem, m, c, out, packing2, first, knife.args, 64)
+    for f in ("t", "q", "p", "lam", "iterations"):
+        got = np.concatenate([getattr(chunk.rows, f)[:32], getattr(chunk2.rows, f)[: int(chunk2.n_rows)]])
+        np.testing.assert_array_equal(got, np.asarray(getattr(ref.rows, f))[:60])
+    np.testing.assert_array_equal(np.asarray(rest.q), np.asarray(ref_state.q))
+
+
+@pytest.mark.parametrize("length", [1, 16, 100, 2048])
+@pytest.mark.parametrize("every", [1, 2, 3, 7, 100, 2**31 - 1])
+def test_row_capacity_holds_every_row_a_chunk_can_keep(length, every):
+    """Saved rows in a chunk of ``length`` attempts: the multiples of ``every`` among ≤ length
+    consecutive step counts (≤ length // every + 1) and the final step."""
+    cap = row_capacity(length, every)
+    power_of_two = cap & (cap - 1) == 0
+    assert cap == length or (cap >= length // every + 2 and power_of_two and cap < length)
+
+
+def test_a_sparse_output_chunk_runs_its_whole_length(knife):
+    """With save_every=5 the chunk's buffer is smaller than its length, yet the chunk runs every
+    attempt it may (a too-small buffer would end it early) and keeps exactly the 5th rows."""
+    m = L.LobattoIIIAIIIB(stages=3)
+    c = ConstantStepSize()
+    start = _sixty_steps(knife)
+    assert row_capacity(64, 5) < 64
+    state, chunk, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64, 5)
+    _, full, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64)
+    assert int(state.n_accepted) == 60 and int(chunk.n_rows) == 12
+    np.testing.assert_array_equal(chunk.rows.q[:12], full.rows.q[4:60:5])

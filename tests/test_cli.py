@@ -1,8 +1,8 @@
 """The command-line interface end to end: every command, its files, and bad arguments.
 
 ``main`` is called in-process (so compilations are shared between tests); a few tests run
-``python -m lobattodae`` in a subprocess: the module entry point, the persistent compilation
-cache, and SIGTERM to a running integration.
+``python -m lobattodae`` in a subprocess: the module entry point and the persistent compilation
+cache. Checkpoints, SIGTERM to a running integration and ``--resume``: ``test_resume.py``.
 """
 
 import json
@@ -21,11 +21,9 @@ from lobattodae._cli import DEMO_EXAMPLE, build_parser, main
 from lobattodae._chunks import CHUNK as RUN_CHUNK
 from lobattodae.examples import EXAMPLES, get_example, list_examples
 
+from helpers import RUN_STAGES, RUN_STEPS, cli_method, run_cli
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-RUN_STAGES = 3
-RUN_STEPS = 50
-# ``run`` compiles chunks of solve's default length (RUN_CHUNK); the direct solves below use
-# the same so that they reuse the compilation.
 
 
 def _is_png(path):
@@ -33,15 +31,9 @@ def _is_png(path):
     return len(data) > 1000 and data[:8] == PNG_SIGNATURE
 
 
-def _main(argv, capsys):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 # ------------------------------------------------------------------------- examples
 def test_examples_lists_every_registry_name(capsys):
-    code, out, err = _main(["examples"], capsys)
+    code, out, err = run_cli(["examples"], capsys)
     assert code == 0
     lines = out.strip().splitlines()
     assert len(lines) == len(EXAMPLES)
@@ -133,7 +125,7 @@ def test_enable_compilation_cache_unwritable_directory(tmp_path):
 
 # -------------------------------------------------------------------------- tableau
 def test_tableau_check_prints_coefficients_and_assumptions(capsys):
-    code, out, err = _main(["tableau", "3", "--check"], capsys)
+    code, out, err = run_cli(["tableau", "3", "--check"], capsys)
     assert code == 0
     pair = L.lobatto_pair(3)
     assert "s = 3" in out
@@ -155,10 +147,23 @@ def test_tableau_check_prints_coefficients_and_assumptions(capsys):
 
 
 def test_tableau_without_check_has_no_assumption_table(capsys):
-    code, out, _ = _main(["tableau", "4"], capsys)
+    code, out, _ = run_cli(["tableau", "4"], capsys)
     assert code == 0
     assert "s = 4" in out and "A_hat (IIIB)" in out
     assert "Simplifying assumptions" not in out and "Hypotheses" not in out
+
+
+def test_many_stages_warn_that_compilation_takes_long(capsys):
+    assert _cli._stages(str(_cli.MANY_STAGES)) == _cli.MANY_STAGES
+    assert capsys.readouterr().err == ""
+    assert _cli._stages("24") == 24
+    err = capsys.readouterr().err
+    assert "--stages 24" in err and "compil" in err and "minutes" in err
+
+
+def test_the_tableau_of_many_stages_does_not_warn(capsys):
+    assert _cli.main(["tableau", "12"]) == 0
+    assert "compil" not in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------- convergence
@@ -210,7 +215,7 @@ def test_convergence_prints_table(convergence_files):
 def test_convergence_single_step_count_prints_na_not_exact(convergence_files, capsys):
     """One step count: no order can be fitted (NaN); the table says n/a, never "exact".
     (s = 2 with 256 steps reuses the compilation of the study above.)"""
-    code, out, err = _main(["convergence", "--example", "knife-edge", "--stages", "2", "--n-steps", "256"], capsys)
+    code, out, err = run_cli(["convergence", "--example", "knife-edge", "--stages", "2", "--n-steps", "256"], capsys)
     assert code == 0, err
     row = next(line for line in out.splitlines() if line.strip().startswith("2 |"))
     assert "exact" not in row, row
@@ -218,40 +223,10 @@ def test_convergence_single_step_count_prints_na_not_exact(convergence_files, ca
     assert "n/a: no order can be fitted" in out and "--n-steps" in out
 
 
-def test_convergence_order_text_exact_only_at_the_round_off_floor():
-    from lobattodae._convergence import order_text  # the one rule, used by the CLI's table too
-
-    # a fitted order
-    assert order_text(3.987, [1e-3, 1e-4], 1e-13) == "3.99"
-    # NaN because every error is at round-off: the component is exact
-    assert order_text(float("nan"), [1e-16, 2e-16], 1e-13) == "exact"
-    assert order_text(float("nan"), [1e-16], 1e-13) == "exact"
-    # NaN for want of points above the floor: not "exact"
-    assert order_text(float("nan"), [1e-4], 1e-13) == "n/a"
-    assert order_text(float("nan"), [1e-4, 1e-16], 1e-13) == "n/a"
-    # failed runs (NaN errors) are no evidence of exactness
-    assert order_text(float("nan"), [float("nan"), float("nan")], 1e-13) == "n/a"
-
-
 # ------------------------------------------------------------------------------ run
-def _run_method(stages):
-    """The method ``run`` uses: its ``--lam-start`` default."""
-    ns = build_parser().parse_args(["run", "--example", "particle", "--stages", str(stages), "--n-steps", "1"])
-    return L.LobattoIIIAIIIB(stages=stages, lam_start=ns.lam_start)
-
-
-@pytest.fixture(scope="module")
-def particle_direct():
-    ex = get_example("particle")
-    sol = L.solve(ex.problem, _run_method(RUN_STAGES), ex.t_span, ex.q0, ex.p0,
-                  n_steps=RUN_STEPS, args=ex.args, chunk_size=RUN_CHUNK)
-    assert sol.success
-    return ex, sol
-
-
 def _run_particle(tmp_path, capsys, *extra):
-    return _main(["run", "--example", "particle", "--stages", RUN_STAGES, "--n-steps", RUN_STEPS,
-                  "--no-progress", *extra], capsys)
+    return run_cli(["run", "--example", "particle", "--stages", RUN_STAGES, "--n-steps", RUN_STEPS,
+                    "--no-progress", *extra], capsys)
 
 
 def test_run_save_npz_matches_direct_solve(tmp_path, capsys, particle_direct):
@@ -310,8 +285,8 @@ def test_run_plot_writes_png(tmp_path, capsys):
 def test_run_dt_and_t1(tmp_path, capsys):
     f = tmp_path / "sol.npz"
     # dt = 0.3 on [0, 1]: ceil(1/0.3) = 4 steps of 0.25
-    code, out, err = _main(["run", "--example", "particle", "--stages", "2", "--dt", "0.3", "--t1", "1",
-                            "--no-progress", "--save", f], capsys)
+    code, out, err = run_cli(["run", "--example", "particle", "--stages", "2", "--dt", "0.3", "--t1", "1",
+                              "--no-progress", "--save", f], capsys)
     assert code == 0, err
     with np.load(f) as z:
         np.testing.assert_allclose(z["t"], [0.0, 0.25, 0.5, 0.75, 1.0], rtol=0, atol=1e-15)
@@ -321,8 +296,8 @@ def test_run_dt_and_t1(tmp_path, capsys):
 
 def test_run_adaptive_with_t_eval(tmp_path, capsys):
     f = tmp_path / "sol.npz"
-    code, out, err = _main(["run", "--example", "particle", "--stages", "3", "--rtol", "1e-8", "--atol", "1e-10",
-                            "--t1", "1", "--t-eval", "0.25", "0.5", "1.0", "--no-progress", "--save", f], capsys)
+    code, out, err = run_cli(["run", "--example", "particle", "--stages", "3", "--rtol", "1e-8", "--atol", "1e-10",
+                              "--t1", "1", "--t-eval", "0.25", "0.5", "1.0", "--no-progress", "--save", f], capsys)
     assert code == 0, err
     with np.load(f) as z:
         np.testing.assert_array_equal(z["t"], [0.25, 0.5, 1.0])
@@ -369,13 +344,13 @@ def test_lam_start_choices_and_default(monkeypatch, capsys):
     with pytest.raises(_SolveCalled) as called:
         main(argv)
     assert called.value.args[0].lam_start == "auto"
-    code, out, err = _main([*argv, "--lam-start", "zero"], capsys)
+    code, out, err = run_cli([*argv, "--lam-start", "zero"], capsys)
     assert code == 2 and "invalid choice: 'zero'" in err and "auto" in err
 
 
 def test_lam_start_help_one_line_per_mode(capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "100")
-    code, out, _ = _main(["run", "--help"], capsys)
+    code, out, _ = run_cli(["run", "--help"], capsys)
     assert code == 0
     lines = [line.strip() for line in out.splitlines()]
     for mode in ("auto", "previous", "consistent"):
@@ -418,7 +393,7 @@ def test_output_file_in_a_missing_directory_refused_before_any_work(argv, option
     argv = [a.format(d=missing) for a in argv]
     path = argv[argv.index(option) + 1]
     start = time.perf_counter()
-    code, out, err = _main(argv, capsys)
+    code, out, err = run_cli(argv, capsys)
     assert time.perf_counter() - start < 5
     assert code == 2, (out, err)
     assert err.startswith("lobattodae: error:"), err
@@ -432,7 +407,7 @@ def test_output_file_in_a_missing_directory_refused_before_any_work(argv, option
 def test_output_path_that_is_a_directory_refused(tmp_path, monkeypatch, capsys):
     _forbid_integration(monkeypatch)
     (tmp_path / "sol.npz").mkdir()
-    code, out, err = _main(["run", "--example", "particle", "--n-steps", "5", "--save", tmp_path / "sol.npz"], capsys)
+    code, out, err = run_cli(["run", "--example", "particle", "--n-steps", "5", "--save", tmp_path / "sol.npz"], capsys)
     assert code == 2 and "--save" in err and "is a directory" in err
 
 
@@ -443,7 +418,7 @@ def test_output_file_in_a_read_only_directory_refused(tmp_path, monkeypatch, cap
     ro.mkdir()
     real_access = os.access
     monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if str(p) == str(ro) else real_access(p, mode, **kw))
-    code, out, err = _main(["convergence", "--example", "knife-edge", "--json", ro / "c.json"], capsys)
+    code, out, err = run_cli(["convergence", "--example", "knife-edge", "--json", ro / "c.json"], capsys)
     assert code == 2, (out, err)
     assert "--json" in err and str(ro / "c.json") in err and "not writable" in err
 
@@ -452,8 +427,8 @@ def test_run_lam_drift_warning_recommends_the_option(capsys):
     """The paper's scheme on the Chaplygin sleigh (s = 5, h = 0.1, t = 130): λ leaves its band;
     run prints the library's warning in the command line's words and recommends
     --lam-start auto (not the Python API)."""
-    code, out, err = _main(["run", "--example", "sleigh", "--stages", "5", "--n-steps", "1300", "--t1", "130",
-                            "--lam-start", "previous", "--no-progress"], capsys)
+    code, out, err = run_cli(["run", "--example", "sleigh", "--stages", "5", "--n-steps", "1300", "--t1", "130",
+                              "--lam-start", "previous", "--no-progress"], capsys)
     assert code == 0, err
     lines = out.splitlines()
     assert lines[0] == "The solver successfully reached the end of the integration interval."
@@ -517,7 +492,7 @@ def test_sigterm_during_start_up_one_line_exit_130(monkeypatch, restore_signals,
     monkeypatch.setattr(lobattodae.examples, "get_example", slow_start)
     _forbid_integration(monkeypatch)
     start = time.perf_counter()
-    code, out, err = _main(_run_argv(), capsys)
+    code, out, err = run_cli(_run_argv(), capsys)
     assert time.perf_counter() - start < 4
     assert code == 130
     assert err == "lobattodae: interrupted\n" and out == ""
@@ -531,65 +506,17 @@ def test_ctrl_c_during_start_up_one_line_exit_130(monkeypatch, capsys):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(lobattodae.examples, "get_example", interrupted)
-    code, out, err = _main(_run_argv(), capsys)
+    code, out, err = run_cli(_run_argv(), capsys)
     assert code == 130
     assert err.strip() == "lobattodae: interrupted" and "Traceback" not in err
-
-
-#: A run long enough to be stopped in the middle (particle, s = 3, with the step h = 0.04 of
-#: the runs above: some 30 ms per chunk of RUN_CHUNK steps), checkpointed after every chunk.
-SIGTERM_STEPS = 16 * RUN_CHUNK
-SIGTERM_T1 = SIGTERM_STEPS * 2.0 / RUN_STEPS
-
-
-def test_sigterm_stops_a_run_cleanly_and_resume_finishes_bit_for_bit(tmp_path, capsys):
-    """SIGTERM to `lobattodae run --checkpoint` acts like the first Ctrl-C: the run stops at
-    the end of the chunk, the checkpoint and the prefix are written, exit code 1; `--resume`
-    then reaches the end with the numbers of an uninterrupted run, bit for bit."""
-    ckpt, prefix, final = tmp_path / "run.npz", tmp_path / "prefix.npz", tmp_path / "final.npz"
-    argv = ["run", "--example", "particle", "--stages", str(RUN_STAGES), "--n-steps", str(SIGTERM_STEPS),
-            "--t1", str(SIGTERM_T1), "--checkpoint", str(ckpt), "--checkpoint-every", str(RUN_CHUNK)]
-    proc = subprocess.Popen([sys.executable, "-m", "lobattodae", *argv, "--save", str(prefix)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 120
-        while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.005)
-        assert ckpt.exists(), "no checkpoint after the first chunk"
-        proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    assert proc.returncode == 1, (out, err)
-    assert "Traceback" not in err, err
-    assert out.startswith("Interrupted after "), out
-    assert f"checkpoint: {ckpt} (continue with the same command and --resume)" in out
-    with np.load(prefix) as z:
-        n_done = len(z["t"]) - 1
-        assert int(z["status"]) == int(L.Result.INTERRUPTED)
-        prefix_q = z["q"].copy()
-    assert 0 < n_done < SIGTERM_STEPS and n_done % RUN_CHUNK == 0, n_done  # stopped at a chunk's end
-    # resume in-process (shares the compilation with the uninterrupted reference below)
-    code, out, err = _main([*argv, "--resume", "--no-progress", "--save", final], capsys)
-    assert code == 0, (out, err)
-    assert f"steps: {SIGTERM_STEPS} of {SIGTERM_STEPS}" in out
-    ex = get_example("particle")
-    ref = L.solve(ex.problem, _run_method(RUN_STAGES), (ex.t_span[0], SIGTERM_T1), ex.q0, ex.p0,
-                  n_steps=SIGTERM_STEPS, args=ex.args, chunk_size=RUN_CHUNK)
-    with np.load(final) as z:
-        for key in ("t", "q", "p", "lam"):
-            np.testing.assert_array_equal(z[key], getattr(ref, key), err_msg=key)
-    np.testing.assert_array_equal(prefix_q, ref.q[: n_done + 1])
 
 
 # ----------------------------------------------------------------------------- demo
 def test_demo_prints_table_and_writes_plot(tmp_path, capsys):
     # knife-edge reuses the compilations of the convergence test above (the default
-    # example, the sleigh, is covered by tests/test_orders.py).
+    # example, the sleigh, is covered by tests/verification/test_orders.py).
     f = tmp_path / "demo.png"
-    code, out, err = _main(["demo", "--example", "knife-edge", "--stages", "2", "3", "--plot", f], capsys)
+    code, out, err = run_cli(["demo", "--example", "knife-edge", "--stages", "2", "3", "--plot", f], capsys)
     assert code == 0, err
     assert "Convergence study: knife-edge" in out
     assert "max constraint residual" in out
@@ -635,7 +562,7 @@ def test_demo_defaults():
     ],
 )
 def test_bad_arguments_exit_2_with_message(argv, needles, capsys):
-    code, out, err = _main(argv, capsys)
+    code, out, err = run_cli(argv, capsys)
     assert code == 2, (argv, out, err)
     assert err.startswith("lobattodae"), err
     for needle in needles:
@@ -655,7 +582,7 @@ def test_bad_arguments_exit_2_with_message(argv, needles, capsys):
 )
 def test_bad_file_suffix_rejected_before_any_work(argv, needles, tmp_path, capsys):
     argv = [a.format(d=tmp_path) for a in argv]
-    code, out, err = _main(argv, capsys)
+    code, out, err = run_cli(argv, capsys)
     assert code == 2, (out, err)
     for needle in needles:
         assert needle in err, (needle, err)
@@ -665,7 +592,7 @@ def test_bad_file_suffix_rejected_before_any_work(argv, needles, tmp_path, capsy
 
 
 def test_help_exits_zero(capsys):
-    code, out, _ = _main(["run", "--help"], capsys)
+    code, out, _ = run_cli(["run", "--help"], capsys)
     assert code == 0
     assert "--n-steps" in out and "--save" in out
 
@@ -673,8 +600,8 @@ def test_help_exits_zero(capsys):
 # ----------------------------------------------------------------- solver failure in run
 def test_run_newton_failure_nonzero_exit_with_message(tmp_path, capsys):
     f = tmp_path / "prefix.npz"
-    code, out, err = _main(["run", "--example", "falling-disk-general", "--stages", "2", "--dt", "10",
-                            "--no-progress", "--save", f], capsys)
+    code, out, err = run_cli(["run", "--example", "falling-disk-general", "--stages", "2", "--dt", "10",
+                              "--no-progress", "--save", f], capsys)
     assert code == 1, (out, err)
     assert "Step 0 (t = 0" in out and "failed" in out
     # the computed prefix (here only the initial point) is still written
@@ -684,78 +611,12 @@ def test_run_newton_failure_nonzero_exit_with_message(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------- run --model
-MODEL_SOURCE = '''
-from lobattodae.examples import get_example
-
-EX = get_example("particle")
-NOT_CALLABLE = 3
-
-
-def as_dict():
-    return {"problem": EX.problem, "q0": EX.q0, "p0": EX.p0, "args": EX.args, "t_span": EX.t_span,
-            "name": "my particle", "draw": lambda t, q, args: {"dot": [q[0], q[2]]}}
-
-
-def as_tuple():
-    return EX.problem, list(EX.q0), list(EX.p0), EX.args
-
-
-def as_example():
-    return EX
-
-
-def returns_int():
-    return 42
-
-
-def returns_pair():
-    return EX.problem, EX.q0
-
-
-def dict_without_q0():
-    return {"problem": EX.problem, "p0": EX.p0, "t_span": (0.0, 1.0)}
-
-
-def dict_with_typo():
-    return {"problem": EX.problem, "q0": EX.q0, "p0": EX.p0, "tspan": (0.0, 1.0)}
-
-
-def not_a_problem():
-    return "sleigh", EX.q0, EX.p0
-
-
-def q0_matrix():
-    return EX.problem, [[0.0, 0.0, 0.0]], EX.p0
-
-
-def raises():
-    raise ValueError("boom: bad parameter")
-'''
-
-
-@pytest.fixture
-def model_module(tmp_path, monkeypatch):
-    """A module of model factories in a temporary directory, the current directory of the test
-    (``lobattodae run --model NAME:FACTORY`` imports it from there, as ``python -m`` would)."""
-    import uuid
-
-    name = f"usermodels_{uuid.uuid4().hex[:10]}"
-    (tmp_path / f"{name}.py").write_text(MODEL_SOURCE)
-    (tmp_path / f"{name}_broken.py").write_text("import missing_dependency_xyz\n")
-    (tmp_path / f"{name}_syntax.py").write_text("def f(:\n")
-    monkeypatch.chdir(tmp_path)
-    yield name
-    for key in [k for k in sys.modules if k.startswith(name)]:
-        del sys.modules[key]
-    assert str(tmp_path) not in sys.path  # the CLI took the directory off sys.path again
-
-
 def test_run_model_dict_factory_plot_and_animation(model_module, particle_direct, tmp_path, capsys):
     _, sol = particle_direct
     f, png, gif = tmp_path / "sol.npz", tmp_path / "diag.png", tmp_path / "traj.gif"
-    code, out, err = _main(["run", "--model", f"{model_module}:as_dict", "--stages", RUN_STAGES, "--n-steps",
-                            RUN_STEPS, "--no-progress", "--save", f, "--plot", png, "--animate", gif, "--frames", 6],
-                           capsys)
+    code, out, err = run_cli(["run", "--model", f"{model_module}:as_dict", "--stages", RUN_STAGES, "--n-steps",
+                              RUN_STEPS, "--no-progress", "--save", f, "--plot", png, "--animate", gif, "--frames", 6],
+                             capsys)
     assert code == 0, err
     assert "steps: 50 of 50" in out and "max |energy(t) - energy(0)|" in out  # the problem's H by default
     with np.load(f) as z:  # the same run as the example's
@@ -773,33 +634,18 @@ def test_run_model_tuple_needs_t1_file_path_and_example(model_module, particle_d
     _, sol = particle_direct
     f = tmp_path / "sol.npz"
     base = ["run", "--stages", RUN_STAGES, "--n-steps", RUN_STEPS, "--no-progress", "--save", f]
-    code, out, err = _main(base + ["--model", f"{model_module}:as_tuple", "--t1", "2"], capsys)
+    code, out, err = run_cli(base + ["--model", f"{model_module}:as_tuple", "--t1", "2"], capsys)
     assert code == 0, err
     with np.load(f) as z:
         np.testing.assert_allclose(z["q"], sol.q, rtol=0, atol=1e-12)
     # a tuple has no t_span: --t1 is needed, and the message says so (before any work)
-    code, out, err = _main(["run", "--model", f"{model_module}:as_tuple", "--n-steps", "5"], capsys)
+    code, out, err = run_cli(["run", "--model", f"{model_module}:as_tuple", "--n-steps", "5"], capsys)
     assert code == 2 and "gives no t_span; pass --t1" in err and out == ""
     # FILE.py:FACTORY, returning an Example
-    code, out, err = _main(base + ["--model", f"./{model_module}.py:as_example"], capsys)
+    code, out, err = run_cli(base + ["--model", f"./{model_module}.py:as_example"], capsys)
     assert code == 0, err
     with np.load(f) as z:
         np.testing.assert_allclose(z["q"], sol.q, rtol=0, atol=1e-12)
-
-
-def test_run_model_with_checkpoint_and_resume(model_module, particle_direct, tmp_path, capsys):
-    _, sol = particle_direct
-    ck, f1, f2 = tmp_path / "run.npz", tmp_path / "a.npz", tmp_path / "b.npz"
-    base = ["run", "--model", f"{model_module}:as_dict", "--stages", RUN_STAGES, "--n-steps", RUN_STEPS,
-            "--no-progress", "--checkpoint", ck, "--checkpoint-every", 20]
-    code, out, err = _main(base + ["--save", f1], capsys)
-    assert code == 0, err
-    assert ck.exists() and f"checkpoint: {ck}" in out
-    code, out, err = _main(base + ["--resume", "--save", f2], capsys)
-    assert code == 0, err
-    with np.load(f1) as a, np.load(f2) as b:
-        np.testing.assert_array_equal(a["q"], b["q"])
-        np.testing.assert_allclose(a["q"], sol.q, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize(
@@ -827,7 +673,7 @@ def test_run_model_with_checkpoint_and_resume(model_module, particle_direct, tmp
 def test_run_model_errors_one_line_exit_2(spec, needles, model_module, monkeypatch, capsys):
     _forbid_integration(monkeypatch)
     spec = spec.format(m=model_module)
-    code, out, err = _main(["run", "--model", spec, "--n-steps", "5", "--t1", "1"], capsys)
+    code, out, err = run_cli(["run", "--model", spec, "--n-steps", "5", "--t1", "1"], capsys)
     assert code == 2, (out, err)
     assert out == ""
     assert err.startswith("lobattodae: error: --model"), err
@@ -837,7 +683,7 @@ def test_run_model_errors_one_line_exit_2(spec, needles, model_module, monkeypat
 
 
 def test_run_example_and_model_are_exclusive(capsys):
-    code, out, err = _main(["run", "--example", "particle", "--model", "m:f", "--n-steps", "5"], capsys)
+    code, out, err = run_cli(["run", "--example", "particle", "--model", "m:f", "--n-steps", "5"], capsys)
     assert code == 2 and "not allowed with argument" in err
 
 
@@ -854,7 +700,7 @@ def test_run_example_and_model_are_exclusive(capsys):
 def test_run_animation_options_checked_before_any_work(extra, needles, tmp_path, monkeypatch, capsys):
     _forbid_integration(monkeypatch)
     argv = ["run", "--example", "particle", "--n-steps", "5"] + [a.format(d=tmp_path) for a in extra]
-    code, out, err = _main(argv, capsys)
+    code, out, err = run_cli(argv, capsys)
     assert code == 2, (out, err)
     for needle in needles:
         assert needle in err, (needle, err)
@@ -877,17 +723,17 @@ def test_run_model_from_a_mechanics_model(tmp_path, monkeypatch, capsys):
     monkeypatch.delitem(sys.modules, "mech_models_cli", raising=False)
     try:
         f = tmp_path / "sol.npz"
-        code, out, err = _main(["run", "--model", "mech_models_cli:sleigh", "--stages", "3", "--n-steps", "10",
-                                "--no-progress", "--save", f], capsys)
+        code, out, err = run_cli(["run", "--model", "mech_models_cli:sleigh", "--stages", "3", "--n-steps", "10",
+                                  "--no-progress", "--save", f], capsys)
         assert code == 0, err
         model = mechanics.systems.chaplygin_sleigh()
         args = model.args(m=1.0, I=1.0, a=1.0)
         p0 = model.momenta(0.0, [0.0, 0.0, 0.0], [0.0, 1.0, 1.0], args)  # qdot0 -> p0 as the CLI does
-        sol = L.solve(model.problem, _run_method(3), (0.0, 1.0), [0.0, 0.0, 0.0], p0, args=args, n_steps=10,
+        sol = L.solve(model.problem, cli_method(3), (0.0, 1.0), [0.0, 0.0, 0.0], p0, args=args, n_steps=10,
                       chunk_size=RUN_CHUNK)
         with np.load(f) as z:
             np.testing.assert_allclose(z["q"], sol.q, rtol=0, atol=1e-12)
-        code, out, err = _main(["run", "--model", "mech_models_cli:bare", "--n-steps", "10"], capsys)
+        code, out, err = run_cli(["run", "--model", "mech_models_cli:bare", "--n-steps", "10"], capsys)
         assert code == 2 and "a mechanics model (Chaplygin sleigh (Lagrangian)) without initial values" in err
     finally:
         sys.modules.pop("mech_models_cli", None)

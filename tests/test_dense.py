@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 
 import lobattodae as L
-from lobattodae.examples import get_example
 
 #: Evaluation points per step, θ = (k + 1/2)/N_THETA (none is a Lobatto node for s ≤ 5).
 N_THETA = 8
@@ -33,11 +32,6 @@ CASES = {
 #: Smallest errors used in the fits must stay above these levels (round-off is ~1e-15 for
 #: q, p, φ and ~1e-13 for λ, which is solved through Z = hΛ).
 FLOOR = {"q": 1e-12, "p": 1e-12, "lam": 1e-10, "phi": 1e-12}
-
-
-@pytest.fixture(scope="module")
-def sleigh():
-    return get_example("sleigh")
 
 
 @pytest.fixture(scope="module")

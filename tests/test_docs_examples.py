@@ -2,14 +2,12 @@
 the sleigh's parameters recovered by least squares through the solver, the stability
 threshold of the upright rolling disk from the Jacobian of the flow map."""
 
-import importlib.util
 import math
-import pathlib
 
 import numpy as np
 import pytest
 
-EXAMPLES_DIR = pathlib.Path(__file__).resolve().parents[1] / "docs" / "examples"
+from helpers import load_example_script as _load  # test_gallery.py looks for _load("NAME")
 
 #: Estimates must lie within this many standard errors of the truth (the noise draw is fixed;
 #: measured in the short run: at most 1.5 over the seven parameters, 0.83 for a).
@@ -25,13 +23,6 @@ THRESHOLD_REL_TOL = 1e-11
 #: The nontrivial multipliers at v = 0.75 √(gR) against exp(±iντ) of the linearised equations
 #: (5 steps of s = 4 over τ; measured 7.8e-8, order 6 in h).
 ROTATION_REL_TOL = 1e-6
-
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, EXAMPLES_DIR / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")

@@ -10,11 +10,6 @@ from lobattodae._doubling import StepDoubling, for_error_control
 from lobattodae.examples import get_example
 
 
-@pytest.fixture(scope="module")
-def knife():
-    return get_example("knife-edge")
-
-
 def _one_step(ex, s, h, t0=0.3):
     q0, p0, lam0 = (jnp.asarray(x) for x in ex.exact(t0))
     doubling = StepDoubling(L.LobattoIIIAIIIB(stages=s, lam_start="consistent"))

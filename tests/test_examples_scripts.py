@@ -1,25 +1,17 @@
 """The runnable examples under docs/examples: they run, and their numbers are right."""
 
-import importlib.util
 import math
-import pathlib
 
 import numpy as np
 import pytest
 
 import lobattodae as L
 
-EXAMPLES_DIR = pathlib.Path(__file__).resolve().parents[1] / "docs" / "examples"
+from helpers import load_example_script as _load  # test_gallery.py looks for _load("NAME")
+
 #: The touchdown time must agree with the independent reference (scipy DOP853 on the reduced
 #: ODE at rtol 1e-13) to this relative difference (measured 9.3e-10 at the script's rtol 1e-10, 2026-11-26).
 TOUCHDOWN_REL_TOL = 1e-8
-
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, EXAMPLES_DIR / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")

@@ -239,14 +239,3 @@ def test_auto_checkpoints_resolve_and_agree():
     g_auto, g_all = jax.grad(loss)(p0, "auto"), jax.grad(loss)(p0, None)
     np.testing.assert_allclose(g_auto, g_all, rtol=1e-12, atol=1e-14)
     assert float(jnp.max(jnp.abs(g_all))) > 1e-3  # a gradient that is not trivially zero
-
-
-def test_options_are_checked():
-    ex = get_example("knife-edge")
-    method = L.LobattoIIIAIIIB(stages=2)
-    with pytest.raises(L.LobattoDAEInputError, match="checkpoints"):
-        L.integrate(ex.problem, method, 0.0, 0.1, 4, ex.q0, ex.p0, ex.lam0, ex.args, checkpoints=0)
-    with pytest.raises(L.LobattoDAEInputError, match="'auto'"):
-        L.integrate(ex.problem, method, 0.0, 0.1, 4, ex.q0, ex.p0, ex.lam0, ex.args, checkpoints="sqrt")
-    with pytest.raises(L.LobattoDAEInputError, match="differentiable"):
-        L.integrate_adaptive(ex.problem, method, (0.0, 1.0), ex.q0, ex.p0, ex.lam0, ex.args, differentiable="yes")

@@ -2,7 +2,9 @@
 (``lobattodae._projection``), on the Cartesian pendulum and double pendulum.
 
 References are independent: the angle ODEs of the pendulums solved by scipy's DOP853 at
-rtol = atol = 1e-13. Orders are fitted over the points above the round-off plateau.
+rtol = atol = 1e-13 (the pendulum's: ``helpers.Pendulum``, fixture ``pendulum``). Orders are
+fitted over the points above the round-off plateau. The study of ψ between step points is in
+``tests/verification/test_mechanics_studies.py``.
 """
 
 from __future__ import annotations
@@ -27,53 +29,12 @@ from lobattodae import (  # noqa: E402
 )
 from lobattodae.mechanics import systems  # noqa: E402
 
-#: ψ and φ at the step points: round-off.
-EXACT = 1e-13
-#: errors below this are on the round-off plateau and left out of the order fits
-PLATEAU = 1e-11
+from helpers import EXACT, fitted_order, max_abs  # noqa: E402
+
 REF_TOL = 1e-13
 
 
-def _max(a):
-    return float(np.max(np.abs(np.asarray(a))))
-
-
-def _fitted_order(ns, errors):
-    ns, errors = np.asarray(ns, float), np.asarray(errors)
-    keep = errors > PLATEAU
-    assert keep.sum() >= 2, errors
-    return -np.polyfit(np.log(ns[keep]), np.log(errors[keep]), 1)[0]
-
-
 # ----------------------------------------------------------------------------- the systems
-class Pendulum:
-    """The Cartesian pendulum, θ0 = 0.6, ℓ = 1.3, and the angle ODE θ'' = −(g/ℓ) sin θ."""
-
-    g, ell, mass, th0 = 9.81, 1.3, 0.7, 0.6
-
-    def __init__(self):
-        self.model = systems.cartesian_pendulum()
-        self.args = self.model.args(m=self.mass, g=self.g, l=self.ell)
-        self.q0 = self.ell * np.array([math.sin(self.th0), -math.cos(self.th0)])
-        qd0 = self.model.complete_velocities(0.0, self.q0, np.array([0.5, 0.5]), self.args)
-        self.om0 = (self.q0[0] * qd0[1] - self.q0[1] * qd0[0]) / self.ell**2
-        self.model.check(0.0, self.q0, self.args)
-        self.p0 = self.model.momenta(0.0, self.q0, qd0, self.args)
-
-    def reference(self, t_end):
-        k = self.g / self.ell
-        ref = solve_ivp(lambda t, y: [y[1], -k * math.sin(y[0])], (0.0, t_end), [self.th0, self.om0],
-                        method="DOP853", rtol=REF_TOL, atol=REF_TOL, dense_output=True)
-
-        def states(t):
-            th, om = ref.sol(t)
-            q = self.ell * np.stack([np.sin(th), -np.cos(th)], -1)
-            v = self.ell * om[:, None] * np.stack([np.cos(th), np.sin(th)], -1)
-            return q, self.mass * v
-
-        return states
-
-
 class DoublePendulum:
     """The Cartesian double pendulum and the classical angle ODE of the double pendulum."""
 
@@ -123,11 +84,6 @@ class DoublePendulum:
 
 
 @pytest.fixture(scope="module")
-def pendulum():
-    return Pendulum()
-
-
-@pytest.fixture(scope="module")
 def double_pendulum():
     return DoublePendulum()
 
@@ -136,8 +92,8 @@ def _assert_exact(model, sol, args):
     """ψ and φ at every row of the solution: round-off."""
     psi = model.holonomic_residual(sol.t, sol.q, args)
     assert psi.shape == (len(sol.t), model.n_holonomic)
-    assert _max(psi) <= EXACT, _max(psi)
-    assert _max(model.constraint_residual(sol.t, sol.q, sol.p, args)) <= EXACT
+    assert max_abs(psi) <= EXACT, max_abs(psi)
+    assert max_abs(model.constraint_residual(sol.t, sol.q, sol.p, args)) <= EXACT
 
 
 # ----------------------------------------------------------------------------- exactness and orders
@@ -168,11 +124,11 @@ def test_psi_exact_at_every_step_and_orders_kept(system, stages, ns, request):
         assert sol.success
         _assert_exact(sysm.model, sol, sysm.args)
         q_ref, p_ref = states(sol.t)
-        eq.append(_max(sol.q - q_ref))
-        ep.append(_max(sol.p - p_ref))
+        eq.append(max_abs(sol.q - q_ref))
+        ep.append(max_abs(sol.p - p_ref))
     expected = 2 * stages - 2
-    assert _fitted_order(ns, eq) >= expected - 0.3, (eq, _fitted_order(ns, eq))
-    assert _fitted_order(ns, ep) >= expected - 0.3, (ep, _fitted_order(ns, ep))
+    assert fitted_order(ns, eq) >= expected - 0.3, (eq, fitted_order(ns, eq))
+    assert fitted_order(ns, ep) >= expected - 0.3, (ep, fitted_order(ns, ep))
 
 
 def test_adaptive_steps_keep_psi_exact(double_pendulum):
@@ -184,7 +140,7 @@ def test_adaptive_steps_keep_psi_exact(double_pendulum):
     assert sol.success and len(sol.t) > 20
     _assert_exact(dp.model, sol, dp.args)
     q_ref, _ = dp.reference(3.0)(sol.t)
-    assert _max(sol.q - q_ref) < 1e-5
+    assert max_abs(sol.q - q_ref) < 1e-5
 
 
 def test_terminal_event_ends_on_the_constraint(pendulum):
@@ -223,7 +179,7 @@ def test_long_run_energy_and_psi_with_and_without_projection(pendulum):
         sol = L.solve(problem, method, (0.0, 200.0), pe.q0, pe.p0, n_steps=10_000, args=pe.args)
         assert sol.success
         energy = pe.model.energy(sol.t, sol.q, sol.p, pe.args)
-        runs[label] = (_max(pe.model.holonomic_residual(sol.t, sol.q, pe.args)), np.abs(energy - energy[0]))
+        runs[label] = (max_abs(pe.model.holonomic_residual(sol.t, sol.q, pe.args)), np.abs(energy - energy[0]))
     psi, dev = runs["projected"]
     psi_plain, dev_plain = runs["plain"]
     assert psi <= EXACT
@@ -259,9 +215,9 @@ def test_gradient_through_integrate_matches_finite_differences(pendulum):
     theta = jnp.array([0.6, 1.3])
     grad, grad_psi = jax.jit(jax.jacrev(final))(theta)
     fd = np.array([(final(theta + 1e-5 * e)[0] - final(theta - 1e-5 * e)[0]) / 2e-5 for e in np.eye(2)])
-    np.testing.assert_allclose(grad, fd, rtol=1e-6, atol=1e-6 * _max(fd))
+    np.testing.assert_allclose(grad, fd, rtol=1e-6, atol=1e-6 * max_abs(fd))
     assert abs(final(theta)[1]) <= EXACT
-    assert _max(grad_psi) <= 1e-12, grad_psi
+    assert max_abs(grad_psi) <= 1e-12, grad_psi
 
 
 # ----------------------------------------------------------------------------- the generic problem
@@ -333,24 +289,7 @@ def test_bad_position_constraints_are_refused_with_the_fix(pendulum):
         L.solve(good, method, (0.0, 0.1), q_off, p_off, n_steps=2, args=pe.args)
 
 
-# ----------------------------------------------------------------------------- slow studies
-@pytest.mark.slow
-def test_dense_output_leaves_psi_by_the_interpolation_error(pendulum):
-    """Between step points the dense output interpolates the unprojected stages: ψ there is
-    not round-off but falls with the step size, at least like the dense output's order s
-    (measured, s = 3: 1.2e-6, 1.1e-7, 7.7e-9 at h = 0.04, 0.02, 0.01, slope 3.6)."""
-    pe = pendulum
-    method = L.LobattoIIIAIIIB(stages=3)
-    worst = []
-    for n in (50, 100, 200):
-        h = 2.0 / n
-        t_eval = (np.arange(n) + 0.5) * h
-        sol = L.solve(pe.model.problem, method, (0.0, 2.0), pe.q0, pe.p0, n_steps=n, args=pe.args, t_eval=t_eval)
-        worst.append(_max(pe.model.holonomic_residual(sol.t, sol.q, pe.args)))
-    assert worst[0] < 1e-5 and worst[0] > 1e3 * EXACT, worst
-    assert _fitted_order((50, 100, 200), worst) >= 3 - 0.3, worst
-
-
+# ----------------------------------------------------------------------------- dense output
 def test_projected_dense_output_keeps_psi_phi_and_the_accuracy(pendulum):
     """``sol.sol(t, project=True)`` puts interpolated values on ψ = 0 and φ = 0 (round-off, where
     the interpolant misses ψ by ~1e-7) and moves them by about their own error: still as close
@@ -362,15 +301,16 @@ def test_projected_dense_output_keeps_psi_phi_and_the_accuracy(pendulum):
     q, p, _ = sol.sol(t)
     qp, pp, lamp = sol.sol(t, project=True)
     phi = jax.vmap(lambda tt, qq, pq: pe.model.problem.phi(tt, qq, pq, pe.args))
-    assert _max(pe.model.holonomic_residual(t, q, pe.args)) > 1e-8
-    assert _max(pe.model.holonomic_residual(t, qp, pe.args)) < EXACT
-    assert _max(phi(jnp.asarray(t), jnp.asarray(qp), jnp.asarray(pp))) < EXACT
+    assert max_abs(pe.model.holonomic_residual(t, q, pe.args)) > 1e-8
+    assert max_abs(pe.model.holonomic_residual(t, qp, pe.args)) < EXACT
+    assert max_abs(phi(jnp.asarray(t), jnp.asarray(qp), jnp.asarray(pp))) < EXACT
     hidden = jax.vmap(lambda tt, qq, pq, ll: L.hidden_constraint(pe.model.problem, tt, qq, pq, ll, pe.args))
-    assert _max(hidden(jnp.asarray(t), jnp.asarray(qp), jnp.asarray(pp), jnp.asarray(lamp))) < 1e-10
+    assert max_abs(hidden(jnp.asarray(t), jnp.asarray(qp), jnp.asarray(pp), jnp.asarray(lamp))) < 1e-10
     q_ref, p_ref = pe.reference(2.0)(t)
-    assert _max(qp - q_ref) < 2 * _max(q - q_ref) and _max(pp - p_ref) < 2 * _max(p - p_ref)
+    assert max_abs(qp - q_ref) < 2 * max_abs(q - q_ref) and max_abs(pp - p_ref) < 2 * max_abs(p - p_ref)
 
 
+# ----------------------------------------------------------------------------- checkpoint and resume
 @pytest.mark.slow
 def test_checkpoint_resume_with_projection_is_bitwise(pendulum, tmp_path):
     pe = pendulum

@@ -18,6 +18,8 @@ from lobattodae import LobattoDAEInputError, mechanics  # noqa: E402
 from lobattodae.examples import chaplygin_sleigh, falling_rolling_disk, knife_edge  # noqa: E402
 from lobattodae.mechanics import systems  # noqa: E402
 
+from helpers import max_abs  # noqa: E402
+
 METHOD = lobattodae.LobattoIIIAIIIB(stages=3)
 T = dynamicsymbols._t
 
@@ -26,10 +28,6 @@ def _random_states(n, m, count=5, seed=0):
     rng = np.random.default_rng(seed)
     for _ in range(count):
         yield rng.uniform(-1, 1), rng.normal(size=n), rng.normal(size=n), rng.normal(size=m)
-
-
-def _max(a):
-    return float(np.max(np.abs(np.asarray(a))))
 
 
 def _solve(model, t_span, q0, p0, n_steps, args):
@@ -71,9 +69,9 @@ def test_generated_sleigh_solve_matches_hand_written():
     hand = lobattodae.solve(ex.problem, METHOD, ex.t_span, ex.q0, ex.p0, n_steps=40, args=ex.args)
     gen = _solve(model, ex.t_span, ex.q0, ex.p0, 40, args)
     for a, b in ((gen.q, hand.q), (gen.p, hand.p), (gen.lam, hand.lam)):
-        assert _max(a - b) < 1e-12
+        assert max_abs(a - b) < 1e-12
     q_exact, _, _ = ex.exact(gen.t)
-    assert _max(gen.q - q_exact) < 1e-6  # and both are right (s = 3, h = 0.05)
+    assert max_abs(gen.q - q_exact) < 1e-6  # and both are right (s = 3, h = 0.05)
 
 
 def test_models_are_cached_and_hashable():
@@ -97,7 +95,7 @@ def test_turntable_ball_moves_on_the_closed_form_circle_at_order_four():
     # ẋ, ẏ, γ̇ (= ω_z at the identity) given; α̇, β̇ from rolling.
     qd0 = model.complete_velocities(0.0, q0, {"x": u0x, "y": u0y, gamma: wz0}, args)
     assert qd0[[0, 1, 4]].tolist() == [u0x, u0y, wz0]
-    assert _max(model.constraint_terms(0.0, q0, args)[0] @ qd0 + model.constraint_terms(0.0, q0, args)[1]) < 1e-14
+    assert max_abs(model.constraint_terms(0.0, q0, args)[0] @ qd0 + model.constraint_terms(0.0, q0, args)[1]) < 1e-14
     assert alpha in model.coordinates
     p0 = model.momenta(0.0, q0, qd0, args)
     t_end = 5.0  # the centre turns through 2Ω/7·t_end ≈ 1.4 rad about the table's centre
@@ -105,9 +103,9 @@ def test_turntable_ball_moves_on_the_closed_form_circle_at_order_four():
     for n in (20, 40):
         sol = _solve(model, (0.0, t_end), q0, p0, n, args)
         x, y, _, _ = systems.turntable_ball_centre(sol.t, x0, y0, u0x, u0y, om, vx, vy)
-        errors.append(max(_max(sol.q[:, 0] - x), _max(sol.q[:, 1] - y)))
-        assert _max(model.constraint_residual(sol.t, sol.q, sol.p, args)) < 1e-13
-        assert _max(sol.q[:, 3]) < 1.0  # β stays clear of the chart's singularity at π/2
+        errors.append(max(max_abs(sol.q[:, 0] - x), max_abs(sol.q[:, 1] - y)))
+        assert max_abs(model.constraint_residual(sol.t, sol.q, sol.p, args)) < 1e-13
+        assert max_abs(sol.q[:, 3]) < 1.0  # β stays clear of the chart's singularity at π/2
     order = math.log2(errors[0] / errors[1])
     assert errors[1] < 2e-7
     assert 3.6 < order < 4.5, (errors, order)
@@ -177,8 +175,8 @@ def test_differential_drive_with_time_dependent_torques_matches_reduced_ode():
         sol = _solve(model, (0.0, t_end), q0, p0, n, args)
         s = ref.sol(sol.t).T
         qdot = model.velocities(sol.t, sol.q, sol.p, args)
-        err_q = _max(sol.q - s[:, :5])
-        err_v = max(_max(qdot[:, 2] - s[:, 6]), _max(qdot[:, 0] * np.cos(sol.q[:, 2]) + qdot[:, 1] * np.sin(sol.q[:, 2]) - s[:, 5]))
+        err_q = max_abs(sol.q - s[:, :5])
+        err_v = max(max_abs(qdot[:, 2] - s[:, 6]), max_abs(qdot[:, 0] * np.cos(sol.q[:, 2]) + qdot[:, 1] * np.sin(sol.q[:, 2]) - s[:, 5]))
         errors.append(max(err_q, err_v))
     assert errors[1] < 1e-7, errors
     assert 3.5 < math.log2(errors[0] / errors[1]) < 4.6, errors
@@ -214,8 +212,8 @@ def test_feedback_torque_on_the_sleigh_matches_its_reduced_ode():
     errors = []
     for n in (80, 160):
         sol = _solve(model, (0.0, t_end), q0, p0, n, args)
-        errors.append(_max(sol.q - ref.sol(sol.t).T[:, :3]))
-        assert _max(model.constraint_residual(sol.t, sol.q, sol.p, args)) < 1e-13
+        errors.append(max_abs(sol.q - ref.sol(sol.t).T[:, :3]))
+        assert max_abs(model.constraint_residual(sol.t, sol.q, sol.p, args)) < 1e-13
     assert errors[1] < 1e-6, errors
     assert 3.5 < math.log2(errors[0] / errors[1]) < 4.6, errors
     assert abs(sol.q[-1, 2] - par["theta_r"]) < 0.02  # the controller has turned the sleigh
@@ -242,11 +240,11 @@ def test_cartesian_pendulum_against_the_angle_ode_with_exact_holonomic_constrain
     for n in (100, 200):
         sol = _solve(model, (0.0, 2.0), q0, p0, n, args)
         theta = np.arctan2(sol.q[:, 0], -sol.q[:, 1])
-        errors.append(_max(theta - ref.sol(sol.t)[0]))
+        errors.append(max_abs(theta - ref.sol(sol.t)[0]))
         psi = model.holonomic_residual(sol.t, sol.q, args)
         assert psi.shape == (n + 1, 1)
-        assert _max(psi) < 1e-13  # ψ = 0 exactly (it drifted by 5.4e-8 before the projection)
-        assert _max(model.constraint_residual(sol.t, sol.q, sol.p, args)) < 1e-13  # ψ̇ = 0 exactly
+        assert max_abs(psi) < 1e-13  # ψ = 0 exactly (it drifted by 5.4e-8 before the projection)
+        assert max_abs(model.constraint_residual(sol.t, sol.q, sol.p, args)) < 1e-13  # ψ̇ = 0 exactly
     assert errors[0] < 1e-7 and errors[1] < errors[0] / 12, errors
 
 
@@ -426,12 +424,12 @@ def test_complete_velocities_projects_in_the_kinetic_metric():
     guess = rng.normal(size=5)
     qd = model.complete_velocities(0.0, q, guess, args)
     mu, nu = model.constraint_terms(0.0, q, args)
-    assert _max(mu @ qd + nu) < 1e-13
+    assert max_abs(mu @ qd + nu) < 1e-13
     # M-orthogonality: the correction is M⁻¹μᵀ·something, i.e. M (qd − guess) ∈ range(μᵀ)
     M = model.mass_matrix(0.0, q, args)
     corr = M @ (qd - guess)
     coef, *_ = np.linalg.lstsq(mu.T, corr, rcond=None)
-    assert _max(mu.T @ coef - corr) < 1e-12
+    assert max_abs(mu.T @ coef - corr) < 1e-12
 
 
 def test_input_forms_equations_dicts_and_symbol_keys():

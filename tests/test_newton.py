@@ -1,14 +1,15 @@
 """The simplified Newton solver (lobattodae._newton): convergence, result codes, Jacobian reuse,
-the stopping predicates, and the inverse it keeps."""
+the stopping predicates, and the inverse it keeps; a long run of small steps does not stall it."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import lobattodae  # noqa: F401  (float64)
+import lobattodae as L
 from lobattodae import _newton as nw
 from lobattodae._results import Result
+from lobattodae.examples import get_example
 
 
 def _system(x, c):
@@ -128,3 +129,15 @@ def test_options_validate_themselves():
         nw.NewtonOptions(max_iterations=0)
     with pytest.raises(ValueError, match="reuse_jacobian"):
         nw.NewtonOptions(reuse_jacobian="yes")
+
+
+def test_small_steps_do_not_stall_newton():
+    """Regression: with a long-reused Jacobian, increments just above round-off contracted
+    slowly and the iteration ran into its limit (20; particle, s = 3, h = 60/24576). A reused
+    Jacobian that contracts slowly above round-off is refreshed, at the latest after
+    REFRESH_ITERATIONS iterations, and a fresh one converges at once."""
+    from lobattodae._newton import REFRESH_ITERATIONS
+
+    ex = get_example("particle")
+    sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 6.0), ex.q0, ex.p0, n_steps=2458, args=ex.args)
+    assert sol.success and np.max(sol.stats["newton_iterations"]) <= REFRESH_ITERATIONS

@@ -37,7 +37,7 @@ def _close_figures():
 
 
 @pytest.fixture(scope="module")
-def knife():
+def knife_run():
     """The knife edge, constant steps: 20 of h = 0.1 (s = 2)."""
     ex = get_example("knife-edge")
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=2), ex.t_span, ex.q0, ex.p0, args=ex.args, n_steps=20)
@@ -46,7 +46,7 @@ def knife():
 
 
 @pytest.fixture(scope="module")
-def sleigh():
+def sleigh_run():
     """The Chaplygin sleigh, adaptive steps with dense output (s = 3, rtol 1e-6)."""
     ex = get_example("sleigh")
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), ex.t_span, ex.q0, ex.p0, args=ex.args,
@@ -73,8 +73,8 @@ def test_import_lobattodae_does_not_import_matplotlib():
     assert out.stdout.split() == ["False", "False"]
 
 
-def test_plot_constant_steps_title_panels_and_labels(knife):
-    ex, sol = knife
+def test_plot_constant_steps_title_panels_and_labels(knife_run):
+    ex, sol = knife_run
     fig, axes = L.plot(sol, name=ex.name, invariants=dict(ex.invariants))
     title = fig._suptitle.get_text()
     for needle in ("knife-edge (knife edge)", "Lobatto IIIA–IIIB", "s = 2", "h = 0.1", "(20 steps)", "t ∈ [0, 2]"):
@@ -106,8 +106,8 @@ def test_plot_constant_steps_title_panels_and_labels(knife):
     assert "20 constant steps, h = 0.1" in summary and "max ‖φ‖∞ over all steps" in summary
 
 
-def test_plot_adaptive_title_tolerances_and_step_sizes_as_steps(sleigh):
-    ex, sol = sleigh
+def test_plot_adaptive_title_tolerances_and_step_sizes_as_steps(sleigh_run):
+    ex, sol = sleigh_run
     fig, axes = L.plot(sol, name="sleigh", rtol=1e-6, atol=1e-8)
     title = fig._suptitle.get_text()
     assert "rtol = 1.0e-06, atol = 1.0e-08" in title and "s = 3" in title
@@ -126,8 +126,8 @@ def test_plot_adaptive_title_tolerances_and_step_sizes_as_steps(sleigh):
     assert "adaptive steps" in fig._suptitle.get_text() and "rtol" not in fig._suptitle.get_text()
 
 
-def test_plot_adaptive_without_every_step_in_the_rows_has_no_step_panel(sleigh):
-    _, sol = sleigh
+def test_plot_adaptive_without_every_step_in_the_rows_has_no_step_panel(sleigh_run):
+    _, sol = sleigh_run
     rows = np.arange(0, len(sol.t), 3)  # as save_every=3 keeps them
     stats = {**sol.stats, "constraint_residual": sol.stats["constraint_residual"][rows],
              "newton_iterations": sol.stats["newton_iterations"][rows[1:] - 1]}
@@ -137,8 +137,8 @@ def test_plot_adaptive_without_every_step_in_the_rows_has_no_step_panel(sleigh):
     assert "rows are not every step" in axes["summary"].texts[0].get_text()
 
 
-def test_exact_zeros_are_counted_and_marked_not_clipped(knife):
-    _, sol = knife
+def test_exact_zeros_are_counted_and_marked_not_clipped(knife_run):
+    _, sol = knife_run
     res = np.full(len(sol.t), 2.0e-16)
     zero_rows = [0, 3, 4, 11]
     res[zero_rows] = 0.0
@@ -175,8 +175,8 @@ def _plotting_band():
     return _BAND
 
 
-def test_newton_iterations_moving_summary_for_many_steps(knife):
-    ex, _ = knife
+def test_newton_iterations_moving_summary_for_many_steps(knife_run):
+    ex, _ = knife_run
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=2), ex.t_span, ex.q0, ex.p0, args=ex.args, n_steps=1000)
     fig, axes = L.plot(sol)
     ax = axes["newton"]
@@ -198,8 +198,8 @@ def _with_holonomic(sol):
     return dataclasses.replace(sol, problem=problem)
 
 
-def test_plot_holonomic_residual_and_no_hamiltonian(knife):
-    _, sol = knife
+def test_plot_holonomic_residual_and_no_hamiltonian(knife_run):
+    _, sol = knife_run
     fig, axes = L.plot(_with_holonomic(sol))
     texts = _legend_texts(axes["constraint"])
     assert any(t.startswith("‖φ(q_k, p_k)‖∞") for t in texts)
@@ -230,8 +230,8 @@ def _gif_frames(path):
         return im.n_frames, im.size
 
 
-def test_animate_gif_subsamples_rows(knife, tmp_path):
-    _, sol = knife  # 21 rows, no dense output
+def test_animate_gif_subsamples_rows(knife_run, tmp_path):
+    _, sol = knife_run  # 21 rows, no dense output
     out = L.animate(sol, tmp_path / "knife.gif", frames=10, fps=10)
     assert out == tmp_path / "knife.gif"
     assert _gif_frames(out) == (10, (360, 360))
@@ -243,8 +243,8 @@ def test_animate_gif_subsamples_rows(knife, tmp_path):
     assert not plt.get_fignums()  # saved figures are closed
 
 
-def test_frames_from_the_dense_output_are_equally_spaced(sleigh):
-    _, sol = sleigh
+def test_frames_from_the_dense_output_are_equally_spaced(sleigh_run):
+    _, sol = sleigh_run
     times, q = frame_states(sol, 12)
     np.testing.assert_allclose(times, np.linspace(sol.t[0], sol.t[-1], 12), rtol=0, atol=1e-15)
     np.testing.assert_allclose(q, sol.sol(times)[0], rtol=0, atol=0)
@@ -252,8 +252,8 @@ def test_frames_from_the_dense_output_are_equally_spaced(sleigh):
         frame_states(sol, 1)
 
 
-def test_animate_custom_drawing_and_its_errors(sleigh, tmp_path):
-    _, sol = sleigh
+def test_animate_custom_drawing_and_its_errors(sleigh_run, tmp_path):
+    _, sol = sleigh_run
 
     def draw(t, q, args):
         return {"dot": [q[0], q[1]], "stick": [[q[0], q[1]], [q[0] + np.cos(q[2]), q[1] + np.sin(q[2])]]}
@@ -284,17 +284,17 @@ def test_animate_custom_drawing_and_its_errors(sleigh, tmp_path):
 
 
 @pytest.mark.skipif(matplotlib.animation.writers.is_available("ffmpeg"), reason="ffmpeg is installed")
-def test_animate_mp4_without_ffmpeg_says_so(knife, tmp_path):
-    _, sol = knife
+def test_animate_mp4_without_ffmpeg_says_so(knife_run, tmp_path):
+    _, sol = knife_run
     with pytest.raises(ValueError, match="needs ffmpeg"):
         L.animate(sol, tmp_path / "x.mp4", frames=3)
 
 
-def test_rolling_disk_is_drawn_in_3d(knife, tmp_path):
+def test_rolling_disk_is_drawn_in_3d(knife_run, tmp_path):
     ex = get_example("vertical-disk")
     t = np.linspace(*ex.t_span, 11)
     q, p, lam = ex.exact(t)  # the closed form as a Solution: no solve needed to draw it
-    sol = dataclasses.replace(knife[1], t=t, q=q, p=p, lam=lam, problem=ex.problem, args=ex.args, sol=None)
+    sol = dataclasses.replace(knife_run[1], t=t, q=q, p=p, lam=lam, problem=ex.problem, args=ex.args, sol=None)
     anim = L.animate(sol, frames=5)
     ax = anim._fig.axes[0]
     assert ax.name == "3d"
@@ -434,7 +434,7 @@ def test_bicycle_drawing_directions(bicycle):
     assert forward[1] < -0.3 * forward[0]  # heading right: −y in the drawing
 
 
-def test_bicycle_is_a_known_system_and_is_followed(bicycle, knife, tmp_path):
+def test_bicycle_is_a_known_system_and_is_followed(bicycle, knife_run, tmp_path):
     from lobattodae.mechanics import _bicycle
 
     model, args, states = bicycle
@@ -450,7 +450,7 @@ def test_bicycle_is_a_known_system_and_is_followed(bicycle, knife, tmp_path):
     q = np.tile(states["rolled and steered"], (t.size, 1))
     q[:, 0] += 4.6 * t  # rolling along x (the holonomic constraint does not see x or the wheel angles)
     q[:, 6] -= 4.6 / float(args["rR"]) * t
-    sol = dataclasses.replace(knife[1], t=t, q=q, p=np.zeros_like(q), lam=np.zeros((t.size, model.m)),
+    sol = dataclasses.replace(knife_run[1], t=t, q=q, p=np.zeros_like(q), lam=np.zeros((t.size, model.m)),
                               problem=model.problem, args=args, sol=None)
     anim = L.animate(sol, frames=5)
     ax = anim._fig.axes[0]
@@ -475,8 +475,8 @@ def test_bicycle_is_a_known_system_and_is_followed(bicycle, knife, tmp_path):
     gc.collect()
 
 
-def test_animate_several_trails_and_follow_for_any_drawing(sleigh):
-    _, sol = sleigh
+def test_animate_several_trails_and_follow_for_any_drawing(sleigh_run):
+    _, sol = sleigh_run
 
     def draw(t, q, args):
         return {"a": [q[0], q[1]], "b": [q[0] + 1.0, q[1]], "stick": [[q[0], q[1]], [q[0] + 1.0, q[1]]]}

@@ -23,22 +23,10 @@ from lobattodae._controllers import ControlOptions, StepReport
 from lobattodae._reversible import ReversibleStepSize, phase_space_speed
 from lobattodae._chunks import CHUNK, init_host, run_host
 from lobattodae._loop import Output
-from lobattodae.examples import get_example
+
+from helpers import FALL, FALL_P0, FALL_Q0, FIRST_STEP, energy_growth
 
 F64 = jnp.float64
-#: The first step of the reversible runs: mean step about 0.17 on the contact oscillator.
-FIRST_STEP = 0.2
-
-
-@pytest.fixture(scope="module")
-def contact():
-    return get_example("contact")
-
-
-def _energy_error(ex, sol):
-    energy = jax.vmap(lambda q, p: ex.invariants["energy"](0.0, q, p, ex.args))
-    h0 = float(energy(ex.q0[None], ex.p0[None])[0])
-    return np.abs(np.asarray(energy(jnp.asarray(sol.q), jnp.asarray(sol.p))) - h0)
 
 
 @functools.lru_cache(maxsize=None)
@@ -145,12 +133,6 @@ T_ENERGY = 5000.0
 PI_RTOL = 6e-3
 
 
-def _growth(ex, sol):
-    d_h = _energy_error(ex, sol)
-    t_end = sol.t[-1]
-    return d_h[sol.t >= 0.9 * t_end].max() / d_h[sol.t <= 0.1 * t_end].max(), d_h.max()
-
-
 @pytest.fixture(scope="module")
 def energy_runs(contact):
     """The four runs of the energy test, 3·10⁴ steps each (every 10th step point kept)."""
@@ -169,7 +151,7 @@ def test_reversible_control_keeps_the_energy_error_bounded(contact, energy_runs)
     """Measured (2026-11-23): 29,587 steps, max |ΔH| 3.9e-5 (first tenth) → 4.2e-5 (last
     tenth), growth 1.06, no λ reset, steps in [0.13, 0.25]."""
     sol = energy_runs["reversible"]
-    growth, biggest = _growth(contact, sol)
+    growth, biggest = energy_growth(contact, sol)
     assert sol.success and 25_000 < sol.stats["n_steps"] < 35_000
     assert growth < 1.5, growth
     assert biggest < 1e-4, biggest
@@ -190,7 +172,7 @@ def test_error_controlled_steps_make_the_energy_drift(contact, energy_runs):
     rev = energy_runs["reversible"]
     for key in ("pi", "pi-previous", "start-point"):
         sol = energy_runs[key]
-        growth, biggest = _growth(contact, sol)
+        growth, biggest = energy_growth(contact, sol)
         assert sol.success
         assert abs(sol.stats["n_steps"] / rev.stats["n_steps"] - 1) < 0.1, (key, sol.stats["n_steps"])
         assert growth > 4.0, (key, growth)
@@ -238,6 +220,33 @@ def test_a_density_must_be_a_hashable_function():
         ReversibleStepSize(density=Unhashable())
 
 
+def _vector_density(t, q, p, lam, f, g, args):
+    return jnp.abs(f) + 1.0
+
+
+def _scaled_density(t, q, p, lam, f, g, args):  # negative for d < 0, NaN for e < 0: not a density
+    return args["d"] * (1.0 + q[0] ** 2) + jnp.sqrt(args["e"])
+
+
+def test_a_vector_density_is_refused_at_set_up():
+    with pytest.raises(L.ShapeError, match=r"density '_vector_density' must return one positive number.*"
+                                           r"shape \(2,\)"):
+        L.solve(FALL, L.LobattoIIIAIIIB(stages=3), (0.0, 4.0), FALL_Q0, FALL_P0, controller=L.ReversibleStepSize(_vector_density))
+
+
+@pytest.mark.parametrize("args", [{"d": -1.0, "e": 0.0}, {"d": 1.0, "e": -1.0}], ids=["negative", "nan"])
+def test_a_density_that_is_not_positive_says_so(args):
+    sol = L.solve(FALL, L.LobattoIIIAIIIB(stages=3), (0.0, 4.0), FALL_Q0, FALL_P0, args=args, first_step=0.1,
+                  controller=L.ReversibleStepSize(_scaled_density), throw=False)
+    assert not sol.success and sol.result == L.Result.DENSITY_NOT_POSITIVE
+    assert "density of ReversibleStepSize was not positive and finite" in sol.message
+    assert "Non-finite values" not in sol.message and np.all(np.isfinite(sol.q))
+
+
+def test_the_default_density_is_still_accepted():
+    assert L.ReversibleStepSize(phase_space_speed).density is phase_space_speed
+
+
 def _negative(t, q, p, lam, f, g, args):
     return -phase_space_speed(t, q, p, lam, f, g, args)
 
@@ -277,25 +286,7 @@ def test_a_density_that_is_not_positive_stops_the_run(contact, density):
     assert np.all(np.isfinite(sol.q)) and sol.t[-1] <= 1.0 + 0.3
 
 
-# -- long versions ----------------------------------------------------------------------------------
-@pytest.mark.slow
-def test_reversible_control_over_ten_to_the_fifth_steps(contact):
-    """10⁵ steps of s = 3 (t up to 1.7·10⁴): measured max |ΔH| 4.19e-5 in every decade of time
-    from t = 100 on (benchmarks/reversible.py: 4.18e-5 → 4.20e-5), PI at rtol = 1e-4 2.3e-2 in the
-    last decade and growing linearly (exponent 1.00)."""
-    ex = contact
-    t_end = 1.7e4
-    rev = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, t_end), ex.q0, ex.p0, args=ex.args, save_every=50,
-                  controller=ReversibleStepSize(), first_step=FIRST_STEP)
-    pi = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, t_end), ex.q0, ex.p0, args=ex.args, save_every=50,
-                 rtol=1e-4, atol=1e-4)
-    assert rev.stats["n_steps"] > 100_000
-    g_rev, top_rev = _growth(ex, rev)
-    g_pi, top_pi = _growth(ex, pi)
-    assert g_rev < 1.5 and top_rev < 1e-4
-    assert g_pi > 5.0 and top_pi > 100 * top_rev
-
-
+# -- other stage numbers ----------------------------------------------------------------------------
 @pytest.mark.slow
 @pytest.mark.parametrize("stages", [2, 4])
 def test_reversibility_for_other_stage_numbers(contact, stages):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lobattodae import LobattoIIIAIIIB
-from lobattodae._convergence import convergence_study, observed_order
+from lobattodae._convergence import convergence_study
 from lobattodae.examples import get_example
 
 TOL = 0.3
@@ -52,12 +52,3 @@ def test_consistent_restart_keeps_qp_orders_and_raises_lambda_order():
         assert abs(st.observed[s]["q"] - (2 * s - 2)) <= TOL
         assert abs(st.observed[s]["p"] - (2 * s - 2)) <= TOL
         assert abs(st.observed[s]["lam"] - s) <= TOL
-
-
-def test_observed_order_ignores_plateau_and_coarse_points():
-    h = np.array([0.4, 0.2, 0.1, 0.05, 0.025, 0.0125])
-    err = 3.0 * h**4
-    err[0] *= 10.0  # pre-asymptotic coarse point: not among the finest above the floor
-    err[-1] = 1e-15  # round-off plateau
-    assert observed_order(h, err, floor=1e-13) == pytest.approx(4.0, abs=1e-9)
-    assert np.isnan(observed_order(h, np.full_like(h, 1e-16), floor=1e-13))

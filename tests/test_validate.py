@@ -1,4 +1,5 @@
-"""Bad input gets a clear LobattoDAEInputError naming the argument and the fix (issue #13).
+"""Bad problems, args and initial values get a clear LobattoDAEInputError naming the argument
+and the fix, before a run (lobattodae._validate, lobattodae._problem_trace; issue #13).
 
 One test per defect fixed (each failed before the fix: a NaN in args reported as an
 inconsistent λ0, a wrong-length q0 as "dot_general requires contracting dimensions", a string
@@ -19,31 +20,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import lobattodae as L
-from lobattodae._convergence import ConvergenceStudy, order_text
-from lobattodae._errors import ProblemDefinitionError
 from lobattodae._validate import MIN_NEWTON_TOL, check_tolerance_attainable
 from lobattodae.examples import get_example
 
-#: Phrases of raw JAX/NumPy errors that must never be the message a user gets.
-RAW = ("static_argnums", "dot_general", "inhomogeneous", "Error interpreting argument")
+from helpers import RAW, particle_with, solve_short
+
 METHOD = L.LobattoIIIAIIIB(stages=2)
 
 
-@pytest.fixture(scope="module")
-def knife():
-    return get_example("knife-edge")
-
-
-def _particle(mu=None, hamiltonian=None):
-    """The nonholonomic particle, H = |p|²/2 (read from args['k'] when asked), μ = (−y, 0, 1)."""
-    return L.NonholonomicSystem(
-        hamiltonian or (lambda t, q, p, a: 0.5 * p @ p),
-        mu or (lambda t, q, a: jnp.array([[-q[1], 0.0, 1.0]])),
-    )
-
-
 #: One particle reading args['k'], shared by the tests (a problem is compiled per object).
-PARTICLE_K = _particle(hamiltonian=lambda t, q, p, a: 0.5 * a["k"] * (p @ p))
+PARTICLE_K = particle_with(hamiltonian=lambda t, q, p, a: 0.5 * a["k"] * (p @ p))
 Q3, P3 = np.zeros(3), np.array([1.0, 1.0, 0.0])
 
 
@@ -53,6 +39,91 @@ def _message(exc_info) -> str:
     for raw in RAW:
         assert raw not in msg, msg
     return msg
+
+
+# -- initial values, user functions, consistency -------------------------------------------------
+def test_shape_mismatch_q_p(particle):
+    with pytest.raises(L.ShapeError, match="same shape"):
+        solve_short(particle, p0=np.ones(4))
+
+
+def test_q0_not_1d(particle):
+    with pytest.raises(L.ShapeError, match=r"1-D array of shape \(n,\)"):
+        solve_short(particle, q0=np.zeros((3, 1)))
+
+
+def test_nonfinite_initial_values(particle):
+    with pytest.raises(L.ShapeError, match="non-finite"):
+        solve_short(particle, q0=np.array([0.0, np.nan, 0.0]))
+
+
+def test_lam0_wrong_shape(particle):
+    with pytest.raises(L.ShapeError, match=r"lam0 must have shape \(m,\) = \(1,\)"):
+        solve_short(particle, lam0=np.ones(2))
+
+
+def test_user_function_wrong_output_shape():
+    prob = L.PartitionedDAE(
+        f=lambda t, q, p, a: p[:2],
+        g=lambda t, q, p, lam, a: -q,
+        phi=lambda t, q, p, a: jnp.array([p[0]]),
+    )
+    with pytest.raises(L.ShapeError, match=r"f\(t, q, p, args\) must return an array of shape \(3,\)"):
+        L.solve(prob, L.LobattoIIIAIIIB(stages=2), (0, 1), np.zeros(3), np.zeros(3), n_steps=2)
+
+
+def test_user_function_raises():
+    def bad_phi(t, q, p, a):
+        raise KeyError("oops")
+
+    prob = L.PartitionedDAE(lambda t, q, p, a: p, lambda t, q, p, lam, a: -q, bad_phi)
+    with pytest.raises(L.ProblemFunctionError, match="calling phi.*KeyError.*problem's function") as info:
+        L.solve(prob, L.LobattoIIIAIIIB(stages=2), (0, 1), np.zeros(3), np.zeros(3), n_steps=2)
+    assert isinstance(info.value.__cause__, KeyError) and isinstance(info.value, L.LobattoDAEInputError)
+    assert not isinstance(info.value, L.ShapeError)
+
+
+def test_inconsistent_initial_values(particle):
+    with pytest.raises(L.InconsistentInitialValuesError, match=r"violate the constraint.*project_initial=True"):
+        solve_short(particle, p0=np.array([1.0, 1.0, 0.5]))
+
+
+def test_inconsistent_initial_values_projected(particle):
+    sol = solve_short(particle, p0=np.array([1.0, 1.0, 0.5]), project_initial=True)
+    assert sol.success
+    phi0 = particle.problem.phi(0.0, jnp.asarray(sol.q[0]), jnp.asarray(sol.p[0]), particle.args)
+    assert float(jnp.max(jnp.abs(phi0))) < 1e-14
+    assert np.max(sol.stats["constraint_residual"]) < 1e-13
+
+
+def test_inconsistent_lambda0(particle):
+    with pytest.raises(L.InconsistentInitialValuesError, match=r"lam0 violates the hidden constraint.*lam0 = \[1\.\]"):
+        solve_short(particle, lam0=np.array([3.0]))
+
+
+def test_consistent_lambda0_accepted(particle):
+    sol = solve_short(particle, lam0=particle.lam0)
+    np.testing.assert_array_equal(sol.lam[0], particle.lam0)
+
+
+def test_singular_holonomic_constraint():
+    # φ(q) = q_0 does not depend on p: D_pφ D_λg = 0, the problem is index 3.
+    prob = L.PartitionedDAE(
+        f=lambda t, q, p, a: p,
+        g=lambda t, q, p, lam, a: -q + jnp.array([lam[0], 0.0]),
+        phi=lambda t, q, p, a: jnp.array([q[0]]),
+    )
+    with pytest.raises(L.SingularConstraintError, match="holonomic constraint .* must be differentiated"):
+        L.solve(prob, L.LobattoIIIAIIIB(stages=2), (0, 1), np.zeros(2), np.array([0.0, 1.0]), n_steps=2)
+
+
+def test_repeated_constraint_is_singular():
+    prob = L.NonholonomicSystem(
+        lambda t, q, p, a: 0.5 * p @ p,
+        lambda t, q, a: jnp.array([[-q[1], 0.0, 1.0], [-q[1], 0.0, 1.0]]),
+    )
+    with pytest.raises(L.SingularConstraintError, match="singular"):
+        L.solve(prob, L.LobattoIIIAIIIB(stages=2), (0, 1), np.zeros(3), np.array([1.0, 1.0, 0.0]), n_steps=2)
 
 
 # -- 1. non-finite args ----------------------------------------------------------------------
@@ -98,7 +169,7 @@ def test_wrong_length_q0_p0_names_expected_length(knife, n):
 def test_wrong_length_particle_was_dot_general():
     # the case of the report: "dot_general requires contracting dimensions to have the same shape"
     with pytest.raises(L.ShapeError) as info:
-        L.validate_initial_values(_particle(), 0.0, [0.0, 0.0], [1.0, 1.0])
+        L.validate_initial_values(particle_with(), 0.0, [0.0, 0.0], [1.0, 1.0])
     msg = _message(info)
     assert "q0 and p0 have length 2" in msg and "pass q0 and p0 of length 3" in msg
 
@@ -205,39 +276,9 @@ def test_bad_t0_for_validate(knife):
             L.validate_initial_values(knife.problem, t0, knife.q0, knife.p0, args=knife.args)
 
 
-# -- 4. problems built with missing or non-callable functions -----------------------------------
-@pytest.mark.parametrize(
-    "build, expected",
-    [
-        (lambda: L.NonholonomicSystem(), "NonholonomicSystem needs hamiltonian, a function H(t, q, p, args)"),
-        (lambda: L.NonholonomicSystem(lambda t, q, p, a: 0.0), "needs constraint_matrix, a function mu(t, q, args)"),
-        (lambda: L.NonholonomicSystem(lambda t, q, p, a: 0.0, 2), "constraint_matrix must be a function mu(t, q, args) -> (m, n); got int 2"),
-        (lambda: L.NonholonomicSystem(hamiltonian=3.0, constraint_matrix=lambda t, q, a: q), "hamiltonian must be a function"),
-        (lambda: L.MechanicalSystem(lambda t, q, a: jnp.eye(3)), "MechanicalSystem needs potential, a function V(t, q, args)"),
-        (lambda: L.MechanicalSystem(lambda t, q, a: jnp.eye(3), lambda t, q, a: 0.0), "needs constraint_matrix"),
-        (lambda: L.MechanicalSystem(jnp.eye(3), lambda t, q, a: 0.0, lambda t, q, a: q), "mass_matrix must be a function M(t, q, args)"),
-        (lambda: L.PartitionedDAE(lambda *a: 0, lambda *a: 0, "phi"), "phi must be a function phi(t, q, p, args)"),
-        (lambda: L.NonholonomicSystem(lambda *a: 0, lambda *a: 0, lambda *a: 0), "name must be a string"),
-    ],
-)
-def test_problem_construction_refused(build, expected):
-    with pytest.raises(ProblemDefinitionError) as info:
-        build()
-    assert expected in str(info.value)
-    assert isinstance(info.value, L.LobattoDAEInputError) and isinstance(info.value, TypeError)
-
-
-def test_problems_stay_hashable_by_identity():
-    a, b = _particle(), _particle()
-    assert hash(a) == object.__hash__(a) and len({a, b}) == 2
-    assert a != b and a == a and {a: 1}[a] == 1
-    with pytest.raises(AttributeError):
-        a.name = "other"  # frozen
-
-
-# -- 5. constraint matrix of the wrong shape ----------------------------------------------------
+# -- 4. constraint matrix of the wrong shape ----------------------------------------------------
 def test_constraint_matrix_wrong_columns_named():
-    prob = _particle(mu=lambda t, q, a: jnp.array([[-q[1], 0.0, 1.0, 0.0]]))
+    prob = particle_with(mu=lambda t, q, a: jnp.array([[-q[1], 0.0, 1.0, 0.0]]))
     with pytest.raises(L.ShapeError) as info:
         L.solve(prob, METHOD, (0.0, 1.0), Q3, P3, n_steps=2)
     msg = _message(info)
@@ -247,45 +288,13 @@ def test_constraint_matrix_wrong_columns_named():
 
 
 def test_constraint_matrix_one_dimensional_named():
-    prob = _particle(mu=lambda t, q, a: jnp.array([-q[1], 0.0, 1.0]))
+    prob = particle_with(mu=lambda t, q, a: jnp.array([-q[1], 0.0, 1.0]))
     expected = r"constraint_matrix\(t, q, args\) must return a 2-D array of shape \(m, n\) = \(m, 3\).*returned shape \(3,\)"
     with pytest.raises(L.ShapeError, match=expected):
         L.validate_initial_values(prob, 0.0, Q3, P3)
 
 
-# -- 6. the convergence table says n/a, not "exact", for orders it could not fit ---------------
-def _study(errors: dict, n_steps) -> ConvergenceStudy:
-    from lobattodae._convergence import observed_order
-
-    floors = {"q": 1e-13, "p": 1e-13, "lam": 1e-11}
-    h = np.asarray([2.0 / n for n in n_steps])
-    return ConvergenceStudy(
-        name="test", stages=(2,), n_steps={2: np.asarray(n_steps)}, h={2: h},
-        errors={2: {c: np.asarray(e, float) for c, e in errors.items()}}, floors=floors,
-        observed={2: {c: observed_order(h, errors[c], floors[c]) for c in errors}},
-        expected={2: {"q": 2, "p": 2, "lam": None}}, constraint_residual={2: 1e-16},
-    )
-
-
-def test_table_single_step_count_is_na_not_exact():
-    st_ = _study({"q": [1e-3], "p": [2e-3], "lam": [1e-4]}, [16])
-    row = next(line for line in st_.table().splitlines() if line.strip().startswith("2 |"))
-    cols = row.split("|")
-    assert cols[1].split()[0] == "n/a" and cols[2].split()[0] == "n/a" and cols[3].split()[0] == "n/a", row
-    assert "n/a: no order can be fitted" in st_.table()
-
-
-def test_table_exact_only_at_round_off():
-    st_ = _study({"q": [1e-16, 2e-16], "p": [1e-3, 2.5e-4], "lam": [float("nan"), float("nan")]}, [16, 32])
-    row = next(line for line in st_.table().splitlines() if line.strip().startswith("2 |"))
-    cols = row.split("|")
-    assert cols[1].split()[0] == "exact"  # every q error at round-off
-    assert cols[2].split()[0] == "2.00"
-    assert cols[3].split()[0] == "n/a"  # failed runs are no evidence of exactness
-    assert order_text(float("nan"), [1e-4, 1e-16], 1e-13) == "n/a"
-
-
-# -- 7. a Newton tolerance below what float64 can deliver ---------------------------------------
+# -- 5. a Newton tolerance below what float64 can deliver ---------------------------------------
 def test_tolerance_below_round_off_refused():
     with pytest.raises(L.LobattoDAEInputError) as info:
         check_tolerance_attainable(L.LobattoIIIAIIIB(stages=3, tol=1e-17))
@@ -341,6 +350,7 @@ _BAD_LEAF = st.one_of(
     st.just(np.array([1.0, 2.0])),
     st.just([[1.0], [2.0, 3.0]]),
 )
+
 
 _BAD_ARGS = st.one_of(
     st.none(),
@@ -432,6 +442,8 @@ _GOOD = {
     "g": lambda t, q, p, lam, a: jnp.array([q[1] * lam[0], 0.0, -lam[0]]),
     "phi": lambda t, q, p, a: jnp.array([p[2] - q[1] * p[0]]),
 }
+
+
 _BAD_PROBLEMS = {
     (field, kind): L.PartitionedDAE(**{**_GOOD, field: _bad_function(kind)})
     for field in ("f", "g", "phi")

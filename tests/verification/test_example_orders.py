@@ -6,7 +6,7 @@ deviation in ``expected_order_overrides`` (e.g. the vertical rolling disk's p co
 order 2s for even s). ``None`` means "exact up to round-off": then every error of the study
 must lie at round-off. The tolerance is 0.3 on the fitted order and is not loosened per case.
 
-The sleigh and the steady falling disk are covered by ``tests/test_orders.py`` and skipped
+The sleigh and the steady falling disk are covered by ``tests/verification/test_orders.py`` and skipped
 here (they are the most expensive studies).
 """
 
@@ -19,7 +19,7 @@ from lobattodae.examples import get_example, list_examples
 
 TOL = 0.3
 STAGES = (2, 3, 4, 5)
-COVERED_ELSEWHERE = {"sleigh", "falling-disk"}  # tests/test_orders.py
+COVERED_ELSEWHERE = {"sleigh", "falling-disk"}  # tests/verification/test_orders.py
 CLOSED_FORM = [name for name, _ in list_examples() if get_example(name).exact is not None]
 NAMES = [name for name in CLOSED_FORM if name not in COVERED_ELSEWHERE]
 

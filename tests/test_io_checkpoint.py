@@ -1,61 +1,29 @@
-"""The checkpoint file format (lobattodae._io.checkpoint): schema, incremental row segments,
-atomic writes, clear errors, fingerprints."""
+"""The checkpoint file format (lobattodae._io.checkpoint, with the row segments of
+lobattodae._io.segments): schema, incremental row segments, atomic writes, clear errors.
 
-import functools
+Resuming runs through ``solve`` is tested in ``test_resume.py``; the fingerprints in
+``test_io_fingerprint.py``.
+"""
+
+import dataclasses
 import json
 import os
 import re
 import shutil
-import subprocess
-import sys
-import textwrap
 import threading
-import dataclasses
-from dataclasses import dataclass
-from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import lobattodae as L
 from lobattodae._errors import LobattoDAEInputError
 from lobattodae._io import atomic
 from lobattodae._io import checkpoint as C
-from lobattodae._io import fingerprint as F
+from lobattodae.examples import get_example
 
-from helpers import assert_bitwise_equal
-
-
-class Jac(NamedTuple):
-    inverse: Any
-    valid: Any
-
-
-class Stepper(NamedTuple):
-    jacobian: Jac
-    slopes: Any
-
-
-class Y(NamedTuple):
-    q: Any
-    p: Any
-
-
-class State(NamedTuple):
-    y: Y
-    stepper: Stepper
-    step: Any
-
-
-def make_state(n=3, seed=0):
-    rng = np.random.default_rng(seed)
-    return State(
-        y=Y(jnp.asarray(rng.standard_normal(n)), jnp.asarray(rng.standard_normal(n))),
-        stepper=Stepper(Jac(jnp.asarray(rng.standard_normal((n, n))), jnp.asarray(True)),
-                        jnp.asarray(rng.standard_normal((2, n)))),
-        step=jnp.asarray(17, jnp.int32),
-    )
+from helpers import Y, assert_bitwise_equal, make_state
 
 
 def make_rows(k=20, n=3, seed=1):
@@ -68,7 +36,11 @@ def make_rows(k=20, n=3, seed=1):
 
 
 META = {"method": "LobattoIIIAIIIB(stages=3)", "t_span": [0.0, 10.0], "h": 0.01, "q0": "abc123"}
+
+
 COUNTERS = {"done": 20, "recoveries": 1, "resets": 0, "elapsed": 1.25}
+
+
 ROW_NAMES = ["q", "result", "ok"]
 
 
@@ -109,7 +81,6 @@ def expect_corrupt(path, **kw) -> str:
     assert re.search(CORRUPT, msg), msg
     assert "PosixPath" not in msg and "\n" not in msg
     return msg
-
 
 
 def leftovers(directory, keep):
@@ -201,19 +172,6 @@ def test_file_schema_is_explicit(tmp_path):
     for key in ("q", "result", "ok"):
         h.update(f"|{key}|{rows[key].dtype.str}|{rows[key].shape}|".encode() + rows[key].tobytes())
     assert h.hexdigest() == segments["head"]
-
-
-def test_state_fields_are_dotted_names():
-    assert F.state_fields(make_state(n=4)) == [
-        ("y.q", "float64", (4,)),
-        ("y.p", "float64", (4,)),
-        ("stepper.jacobian.inverse", "float64", (4, 4)),
-        ("stepper.jacobian.valid", "bool", ()),
-        ("stepper.slopes", "float64", (2, 4)),
-        ("step", "int32", ()),
-    ]
-    struct = jax.ShapeDtypeStruct((4,), jnp.float64)
-    assert F.state_fields(Y(struct, np.zeros(2, np.int32))) == [("q", "float64", (4,)), ("p", "int32", (2,))]
 
 
 def test_safe_dtype_casts_are_applied_on_load(tmp_path):
@@ -309,6 +267,23 @@ def test_version_3_single_file_is_refused_with_the_version_message(tmp_path):
 def test_checkpoint_error_is_an_input_error():
     assert issubclass(C.CheckpointError, LobattoDAEInputError)
     assert issubclass(C.CheckpointError, ValueError)
+
+
+def test_state_schema_is_versioned():
+    """Changing the loop State (a field, a dtype, a rank) without bumping the checkpoint VERSION
+    and recording the new fingerprint fails here."""
+    from lobattodae._controllers import ConstantStepSize, ControlOptions
+    from lobattodae._chunks import init_host
+    from lobattodae._io.fingerprint import schema_fingerprint
+    from lobattodae._loop import Output
+
+    ex = get_example("falling-disk-general")
+    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+    state, _ = init_host(ex.problem, L.LobattoIIIAIIIB(stages=4), ConstantStepSize(), Output(), f64(0.0), f64(1.0),
+                         ControlOptions(n=10), f64(ex.q0), f64(ex.p0), f64(ex.lam0), ex.args)
+    assert schema_fingerprint(state) == C.STATE_FINGERPRINT, (
+        "the loop State changed: bump lobattodae._io.checkpoint.VERSION and record the new STATE_FINGERPRINT"
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -586,156 +561,6 @@ def test_new_file_gets_ordinary_permissions(tmp_path):
     assert os.stat(path).st_mode & 0o777 == 0o666 & ~umask
     (name,) = segment_files(path)
     assert os.stat(tmp_path / "run.npz.rows" / name).st_mode & 0o777 == 0o666 & ~umask
-
-
-# --------------------------------------------------------------------------------------------
-# fingerprints
-
-
-class StateWithExtra(NamedTuple):
-    y: Y
-    stepper: Stepper
-    step: Any
-    extra: Any
-
-
-class RenamedState(NamedTuple):
-    y: Y
-    stepper: Stepper
-    steps: Any
-
-
-def test_schema_fingerprint():
-    fp = F.schema_fingerprint(make_state(n=3))
-    assert re.fullmatch(r"[0-9a-f]{16}", fp)
-    assert F.schema_fingerprint(make_state(n=3)) == fp
-    assert F.schema_fingerprint(make_state(n=7)) == fp  # sizes are not part of the schema
-    s = make_state()
-    changed = [
-        RenamedState(s.y, s.stepper, s.step),  # renamed field
-        StateWithExtra(s.y, s.stepper, s.step, jnp.zeros(3)),  # added field
-        s._replace(step=jnp.asarray(17, jnp.int64)),  # dtype
-        s._replace(step=jnp.asarray([17], jnp.int32)),  # rank
-        s._replace(y=s.y._replace(p=s.stepper.slopes)),  # rank of one field
-        Y(s.y.q, s.y.p),  # removed fields
-    ]
-    fps = {F.schema_fingerprint(t) for t in changed}
-    assert fp not in fps and len(fps) == len(changed)
-    assert C.STATE_FINGERPRINT is None or re.fullmatch(r"[0-9a-f]{16}", C.STATE_FINGERPRINT)
-
-
-def test_fingerprint_arrays():
-    a, b = np.arange(3.0), {"k": np.int32(2), "v": (1.5, jnp.ones(2))}
-    fp = F.fingerprint_arrays(a, b)
-    assert re.fullmatch(r"[0-9a-f]{64}", fp)
-    assert F.fingerprint_arrays(np.arange(3.0), {"k": np.int32(2), "v": (1.5, jnp.ones(2))}) == fp
-    assert F.fingerprint_arrays(jnp.arange(3.0), b) == fp  # numpy and JAX arrays alike
-    different = [
-        (a + np.array([0, 0, 1e-12]), b),  # values
-        (a.astype(np.float32), b),  # dtype
-        (a.reshape(1, 3), b),  # shape
-        (a,),  # fewer arguments
-        ((a, b),),  # grouping
-        (np.array([-0.0, 1.0, 2.0]), b),  # bit-exact
-    ]
-    for args in different:
-        assert F.fingerprint_arrays(*args) != fp
-    with pytest.raises(TypeError, match="cannot fingerprint"):
-        F.fingerprint_arrays(object())
-
-
-def square(x):
-    return x * x
-
-
-def test_fingerprint_callable_basics():
-    f = lambda x: x + 1  # noqa: E731
-    g = lambda x: x + 2  # noqa: E731
-    h = lambda x: x * 2  # noqa: E731
-    assert F.fingerprint_callable(f) == F.fingerprint_callable(f)
-    assert len({F.fingerprint_callable(fn) for fn in (f, g, h)}) == 3
-    fp = F.fingerprint_callable(square)
-    assert fp.startswith(__name__ + ".square#") and re.fullmatch(r".*#[0-9a-f]{16}", fp)
-    for _ in range(2000):  # the interpreter specialises hot bytecode; the fingerprint must not change
-        square(3.0)
-    assert F.fingerprint_callable(square) == fp
-
-
-def test_fingerprint_callable_sees_closures_defaults_and_nested_code():
-    def make(k):
-        return lambda x: x + k
-
-    assert F.fingerprint_callable(make(1.0)) == F.fingerprint_callable(make(1.0))
-    assert F.fingerprint_callable(make(1.0)) != F.fingerprint_callable(make(2.0))
-
-    def outer1(x):
-        def inner(y):
-            return y + 1
-        return inner(x)
-
-    def outer2(x):
-        def inner(y):
-            return y + 2
-        return inner(x)
-
-    assert outer1.__code__.co_code == outer2.__code__.co_code
-    assert F.fingerprint_callable(outer1).split("#")[1] != F.fingerprint_callable(outer2).split("#")[1]
-
-    def with_default(x, c=1.0):
-        return x * c
-
-    fp = F.fingerprint_callable(with_default)
-    with_default.__defaults__ = (2.0,)
-    assert F.fingerprint_callable(with_default) != fp
-
-
-@dataclass(frozen=True)
-class Problem:
-    f: Any
-    g: Any
-    name: str = "p"
-
-
-def test_fingerprint_callable_of_objects():
-    f1 = lambda q: -q  # noqa: E731
-    f2 = lambda q: q  # noqa: E731
-    p1, p2 = Problem(f1, square), Problem(f2, square)
-    assert F.fingerprint_callable(p1) == F.fingerprint_callable(Problem(f1, square))
-    assert F.fingerprint_callable(p1) != F.fingerprint_callable(p2)
-    assert F.fingerprint_callable(p1) != F.fingerprint_callable(Problem(f1, square, name="q"))
-    assert F.fingerprint_callable(p1).startswith(__name__ + ".Problem#")
-
-    part = functools.partial(square, 2.0)
-    assert F.fingerprint_callable(part) == F.fingerprint_callable(functools.partial(square, 2.0))
-    assert F.fingerprint_callable(part) != F.fingerprint_callable(functools.partial(square, 3.0))
-    assert F.fingerprint_callable(jax.jit(square)) == F.fingerprint_callable(jax.jit(square))
-    assert F.fingerprint_callable(np.sin) != F.fingerprint_callable(np.cos)
-
-    def rec(n):  # recursion through a closure must terminate
-        return 1 if n == 0 else n * rec(n - 1)
-
-    F.fingerprint_callable(rec)
-
-
-def test_fingerprint_callable_is_stable_across_processes(tmp_path):
-    """No hash randomisation (frozenset constants, dict order) leaks into the fingerprint."""
-    script = tmp_path / "fp.py"
-    script.write_text(textwrap.dedent("""
-        from lobattodae._io.fingerprint import fingerprint_callable, fingerprint_arrays
-
-        def f(x, mode="a"):
-            return x if mode in {"a", "b", "c", "d", "e", "f", "g"} else -x
-
-        print(fingerprint_callable(f), fingerprint_arrays({"b": 1.0, "a": 2}))
-    """))
-    procs = [
-        subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True, cwd=tmp_path,
-                         env=dict(os.environ, PYTHONHASHSEED=str(seed), JAX_PLATFORMS="cpu"))
-        for seed in (1, 2)
-    ]
-    outs = [p.communicate(timeout=60)[0] for p in procs]
-    assert all(p.returncode == 0 for p in procs)
-    assert outs[0] == outs[1] and outs[0].startswith("__main__.f#")
 
 
 # --------------------------------------------------------------------------------------------
