@@ -9,9 +9,7 @@ the rattleback and the two bicycle scripts here under ``-m slow`` (each compiles
 keeps it that way for scripts added later.
 """
 
-import importlib.util
 import math
-import pathlib
 import re
 
 import numpy as np
@@ -19,16 +17,10 @@ import pytest
 
 import lobattodae as L
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-EXAMPLES_DIR = ROOT / "docs" / "examples"
+from helpers import EXAMPLES_DIR, ROOT
+from helpers import load_example_script as _load  # the test below looks for _load("NAME") in test files
+
 GALLERY_DIR = ROOT / "docs" / "gallery"
-
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, EXAMPLES_DIR / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 # ----------------------------------------------------------------------------- every script

@@ -394,13 +394,13 @@ def t_eval_rows_mode(t_eval_rows, controller, has_t_eval: bool) -> str | None:
     return t_eval_rows
 
 
-def t_eval_output(mode: str | None, dense: bool = False, events: tuple[Event, ...] = (), controller=None) -> Output:
+def t_eval_output(mode: str | None, dense: bool = False, events: tuple[Event, ...] = (),
+                  land_on_events: bool = False) -> Output:
     """The loop's :class:`~lobattodae._loop.Output` for the ``t_eval`` rows made as ``mode``
-    (:func:`t_eval_rows_mode`); under error control (a :class:`PIController`) the steps land on
-    the events' zeros."""
+    (:func:`t_eval_rows_mode`), the dense output, the events and whether the steps land on the
+    events' zeros (under error control: :meth:`Saving.of` decides)."""
     return Output(t_eval=mode is not None, dense=dense, events=events, step_to_t_eval=mode == "step",
-                  project_t_eval=mode == "project",
-                  land_on_events=bool(events) and isinstance(controller, PIController))
+                  project_t_eval=mode == "project", land_on_events=land_on_events)
 
 
 @dataclass(frozen=True)
@@ -429,9 +429,7 @@ class Saving:
     @property
     def output(self) -> Output:
         """The loop's static :class:`~lobattodae._loop.Output` (what shapes the buffers)."""
-        return Output(t_eval=self.rows is not None, dense=self.dense, events=self.events,
-                      step_to_t_eval=self.rows == "step", project_t_eval=self.rows == "project",
-                      land_on_events=self.land_on_events)
+        return t_eval_output(self.rows, self.dense, self.events, self.land_on_events)
 
     def identity(self) -> list:
         """What a checkpoint or ensemble file of the run must match: the kept rows, the dense

@@ -26,7 +26,7 @@ from ._errors import LobattoDAEInputError
 from ._io import checkpoint as _checkpoint
 from ._io import fingerprint_arrays, fingerprint_callable
 from ._loop import Output, State
-from ._options import RunOptions
+from ._options import RunOptions, concrete
 from ._progress import ProgressBar, deferred_interrupts, progress_reporter
 from ._results import Result
 from ._rows import ROW_FIELDS, Record
@@ -221,7 +221,7 @@ def _refuse_tracers(**inputs) -> None:
     """``solve`` runs Python between compiled chunks and returns NumPy: under ``jax.grad``,
     ``jit`` or ``vmap`` its inputs are tracers, which it cannot use. Say so, and where to go."""
     for name, value in inputs.items():
-        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(value)):
+        if not concrete(value):
             raise LobattoDAEInputError(
                 f"solve() was called with a traced {name} (inside jax.grad, jit, vmap or another JAX "
                 "transformation); it runs Python between compiled chunks and returns NumPy arrays, so it "
