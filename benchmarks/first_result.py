@@ -5,6 +5,7 @@ available), with one XLA thread, and prints the wall time from before ``import l
 the result:
 
 * ``knife-edge``: the knife edge, s = 4, adaptive (rtol = atol = 1e-8), to the end of its span;
+* ``falling-disk``: the falling disk, s = 4, adaptive (rtol = atol = 1e-8), to the end of its span;
 * ``sleigh-event``: the sleigh, s = 4, adaptive, with a heading event (then, in the same
   process, the same run without the event: the second compilation alone).
 
@@ -31,6 +32,11 @@ import tempfile
 CASES = {
     "knife-edge": """
 ex = L.examples.get_example("knife-edge")
+sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
+print(f"first result {time.perf_counter() - t0:.2f} s")
+""",
+    "falling-disk": """
+ex = L.examples.get_example("falling-disk")
 sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
 print(f"first result {time.perf_counter() - t0:.2f} s")
 """,

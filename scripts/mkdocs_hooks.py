@@ -57,7 +57,7 @@ API_SECTIONS = {
         "convergence_study", "ConvergenceStudy", "observed_order",
     ],
     "plots": ["plot", "animate", "plot_solution", "plot_diagnostics", "plot_convergence"],
-    "performance": ["set_cpu_threads", "enable_compilation_cache"],
+    "performance": ["set_cpu_threads", "enable_compilation_cache", "compiler_options"],
     "errors": [
         "LobattoDAEInputError", "ShapeError", "ProblemDefinitionError", "ProblemFunctionError",
         "InconsistentInitialValuesError", "SingularConstraintError", "CheckpointError",

@@ -16,6 +16,7 @@ import jax as _jax
 _jax.config.update("jax_enable_x64", True)
 
 from ._cache import enable_compilation_cache  # noqa: E402
+from ._compile import compiler_options  # noqa: E402
 from ._io import CheckpointError, CheckpointWriteError, EnsembleFileError  # noqa: E402
 from ._tableau_report import TableauReport, check_tableau  # noqa: E402
 from ._cpu import set_cpu_threads  # noqa: E402
@@ -126,6 +127,7 @@ __all__ = [
     "StepInfo",
     "StepperState",
     "consistent_lambda",
+    "compiler_options",
     "enable_compilation_cache",
     "hidden_constraint",
     "integrate",

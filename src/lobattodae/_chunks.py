@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _compile
 from ._controllers import ControlOptions
 from ._loop import Chunk, Output, State, init_state, run
 from ._dense import dense_size
@@ -98,12 +99,12 @@ class StatePacking:
         return jax.tree_util.tree_unflatten(self.treedef, leaves)
 
 
-@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output", "packing"))
+@_compile.jit(static_argnames=("problem", "method", "controller", "output", "packing"))
 def _init_packed(problem, method, controller, output, packing, t0, t1, options, q0, p0, lam0, args):
     return packing.pack(init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args))
 
 
-@functools.partial(jax.jit, static_argnames=("problem", "method", "controller", "output", "packing", "length",
+@_compile.jit(static_argnames=("problem", "method", "controller", "output", "packing", "length",
                                              "capacity"))
 def _run_packed(problem, method, controller, output, packing, fresh, floats, ints, start, args, length, every, t_eval,
                 capacity):

@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _compile
 from ._errors import LobattoDAEInputError
 from ._projection import project_row
 from ._tableau import LobattoPair, lagrange_basis
@@ -138,7 +139,7 @@ def _evaluate_many(pair: LobattoPair, steps: DenseStep, t):
     return jax.vmap(lambda st, tt: evaluate(pair, st, tt))(steps, t)
 
 
-_evaluate_many_compiled = jax.jit(_evaluate_many, static_argnums=0)
+_evaluate_many_compiled = _compile.jit(_evaluate_many, static_argnums=0)
 
 
 #: The layouts of :meth:`DenseOutput.__call__`: ours (a tuple of time-major arrays) and scipy's.
@@ -256,4 +257,4 @@ class DenseOutput:
         return DenseStep(*(jnp.asarray(np.asarray(x)[idx]) for x in self.steps))
 
 
-_project_many_compiled = jax.jit(jax.vmap(project_row, in_axes=(None, 0, 0, 0, 0, None)), static_argnums=0)
+_project_many_compiled = _compile.jit(jax.vmap(project_row, in_axes=(None, 0, 0, 0, 0, None)), static_argnums=0)

@@ -8,6 +8,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _compile
+
 __all__ = ["invariant_values", "invariant_error", "energy_error", "constraint_residual"]
 
 
@@ -17,7 +19,7 @@ _BATCH = 1024
 
 def _over_trajectory(fn, sol) -> np.ndarray:
     """``fn(t_k, q_k, p_k)`` for every k, in vmapped batches (bounded memory for long runs)."""
-    run = jax.jit(lambda t, q, p: jax.lax.map(lambda x: fn(*x), (t, q, p), batch_size=_BATCH))
+    run = _compile.jit(lambda t, q, p: jax.lax.map(lambda x: fn(*x), (t, q, p), batch_size=_BATCH))
     return np.asarray(run(jnp.asarray(sol.t), jnp.asarray(sol.q), jnp.asarray(sol.p)))
 
 

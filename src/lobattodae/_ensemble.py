@@ -51,6 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from . import _compile
 from ._errors import LobattoDAEInputError
 from ._integrate import integrate, integrate_adaptive
 from ._io import fingerprint_arrays, fingerprint_callable
@@ -216,7 +217,7 @@ def _one(plan: _Plan, numbers, shared, q0, p0, lam0, batched):
     return r
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@_compile.jit(static_argnums=0)
 def _run_block(plan: _Plan, numbers, shared, q0, p0, lam0, batched):
     """One block, sharded over ``plan.mesh``: each device vmaps :func:`_one` over its part."""
     split, whole = PartitionSpec(AXIS), PartitionSpec()

@@ -6,7 +6,6 @@ messages, naming the trajectory).
 
 from __future__ import annotations
 
-import functools
 import warnings
 from typing import Any
 
@@ -14,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _compile
 from ._cpu import cpu_pool_size
 from ._errors import LobattoDAEInputError, ProblemFunctionError, ShapeError
 from ._validate import CONSISTENCY_TOL, SINGULAR_RCOND, _initial_quantities, validate_and_residual
@@ -179,7 +179,7 @@ def _validate_row(problem, t0, q0, p0, lam0, treedef, leaves, flags, paths, batc
         raise
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 2))
+@_compile.jit(static_argnums=(0, 1, 2))
 def _passes(problem, treedef, flags, t0, shared, q0, p0, lam0, batched):
     """Per trajectory of a block: whether it passes the consistency checks of
     :func:`validate_and_residual` (φ, the hidden constraint with the given λ0, ψ, a nonsingular

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _compile
 from ._controllers import ConstantStepSize, ControlOptions, PIController
 from ._dense import evaluate, unpack_dense
 from ._doubling import for_error_control
@@ -74,7 +75,7 @@ def _integrate(problem, method, n_steps, checkpoints, t0, h, q0, p0, lam0, args)
     return IntegrateResult(_with_initial(q0, steps.q), _with_initial(p0, steps.p), _with_initial(lam0, steps.lam), state.result)
 
 
-_integrate_compiled = jax.jit(_integrate, static_argnums=(0, 1, 2, 3))
+_integrate_compiled = _compile.jit(_integrate, static_argnums=(0, 1, 2, 3))
 
 
 #: ``checkpoints="auto"`` (the default of the differentiable entry points): a scan of at least
@@ -257,7 +258,7 @@ def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t
                           jnp.sum(inside.astype(jnp.int32)), state.n_accepted, state.n_rejected, status)
 
 
-_integrate_adaptive_compiled = jax.jit(_integrate_adaptive, static_argnums=(0, 1, 2, 3, 4, 5, 6))
+_integrate_adaptive_compiled = _compile.jit(_integrate_adaptive, static_argnums=(0, 1, 2, 3, 4, 5, 6))
 
 
 def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, args=None, *, rtol=RTOL, atol=ATOL,

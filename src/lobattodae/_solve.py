@@ -15,10 +15,10 @@ import os
 import time
 from typing import Any, Callable
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _compile
 from ._chunks import Progress, init_host, run_host, start_host
 from ._controllers import ConstantStepSize, ControlOptions
 from ._doubling import for_error_control
@@ -403,7 +403,7 @@ def _recover_step(problem, method, args, state: State):
     return None
 
 
-_init_stepper = jax.jit(
+_init_stepper = _compile.jit(
     lambda problem, method, t, q, p, lam, args, h: method.init(problem, t, q, p, lam, args, h),
     static_argnums=(0, 1),
 )

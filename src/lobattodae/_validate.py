@@ -10,7 +10,6 @@ against singularity.
 
 from __future__ import annotations
 
-import functools
 import math
 from typing import Any
 
@@ -18,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _compile
 from ._errors import (
     InconsistentInitialValuesError,
     LobattoDAEInputError,
@@ -116,7 +116,7 @@ def _as_time(t0: Any) -> float:
     return t
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@_compile.jit(static_argnums=0)
 def _position_residual(problem, t, q, args):
     return problem.position_constraint(t, q, args)
 
@@ -139,14 +139,14 @@ def _check_position_constraint(problem, t0, q0, args, tol, scale) -> None:
         )
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@_compile.jit(static_argnums=0)
 def _initial_quantities(problem, t, q, p, lam, args):
     """φ, the hidden-constraint residual, D_pφ·D_λg and one Newton update of λ (one compile)."""
     r, jac = _hidden_constraint_and_jacobian(problem, t, q, p, lam, args)
     return problem.phi(t, q, p, args), r, jac
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@_compile.jit(static_argnums=0)
 def _phi_and_jacobian(problem, t, q, p, args):
     return problem.phi(t, q, p, args), jax.jacfwd(lambda pp: problem.phi(t, q, pp, args))(p)
 
@@ -270,7 +270,7 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
     return q0, np.asarray(p0, np.float64), np.asarray(lam0, np.float64), float(np.max(np.abs(phi0)))
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@_compile.jit(static_argnums=0)
 def _mass_matrix_at(problem, t, q, args):
     return problem.mass_matrix(t, q, args)
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import math
 import types
 from collections.abc import Callable, Mapping
@@ -13,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _compile
 from .._tableau import lobatto_pair
 from .._problem import consistent_lambda, hidden_constraint
 
@@ -309,21 +309,21 @@ def vectorised(core: Callable[[np.ndarray], tuple[np.ndarray, ...]]) -> Callable
     return exact
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@_compile.jit(static_argnums=0)
 def _residuals(problem, t, q, p, lam, args):
     phi = problem.phi(t, q, p, args)
     hid = hidden_constraint(problem, t, q, p, lam, args)
     return phi, hid, consistent_lambda(problem, t, q, p, lam, args)
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@_compile.jit(static_argnums=0)
 def _invariant_along(fn, t, q, p, args):
     return jax.vmap(fn, in_axes=(0, 0, 0, None))(t, q, p, args)
 
 
 # Compiled once per problem object (problems hash by identity) and shapes; the
 # parameters in ``args`` are traced, so every parameter value reuses the compilation.
-_consistent_lambda = jax.jit(consistent_lambda, static_argnums=0)
+_consistent_lambda = _compile.jit(consistent_lambda, static_argnums=0)
 
 
 def consistent_lambda0(problem, q0, p0, args, m: int) -> np.ndarray:

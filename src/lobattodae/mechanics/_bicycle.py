@@ -72,6 +72,7 @@ import numpy as np
 import sympy as sp
 from sympy.physics.mechanics import ReferenceFrame, Vector, dynamicsymbols
 
+from .. import _compile
 from ._builders import from_lagrangian
 from ._model import LagrangianModel
 
@@ -335,7 +336,7 @@ def _compiled(model):
         return dict(f=f, g0=g0, fq=fq, fp=fp, gq0=gq, gp=gp, mu=mu, nu=nu, mu_q=mu_q, nu_q=nu_q, sq=psi_q,
                     M=prob.mass_matrix(0.0, q, args))
 
-    return jax.jit(pitch_newton), jax.jit(first_derivatives)
+    return _compile.jit(pitch_newton), _compile.jit(first_derivatives)
 
 
 def _upright_qp(model, v, args, roll=0.0, steer=0.0, roll_rate=0.0, steer_rate=0.0):

@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 import sympy as sp
 
+from .. import _compile
 from .._errors import ShapeError
 from .._problem import PartitionedDAE
 from ._codegen import FunctionSpec, SolveSpec, generate_module
@@ -234,7 +235,7 @@ class LagrangianModel:
             mass_matrix=fns["mass_matrix"],
             position_constraint=fns["holonomic"] if self.n_holonomic else None,
         )
-        self._jit = {key: jax.jit(fn) for key, fn in fns.items()}
+        self._jit = {key: _compile.jit(fn) for key, fn in fns.items()}
         self._vmapped = {}
 
     # ------------------------------------------------------------------ parameters
@@ -360,7 +361,7 @@ class LagrangianModel:
             fn = self._vmapped.get(key)
             if fn is None:
                 axes = (0,) * (1 + len(vecs)) + (None,)
-                fn = self._vmapped[key] = jax.jit(jax.vmap(self._fns[key], in_axes=axes))
+                fn = self._vmapped[key] = _compile.jit(jax.vmap(self._fns[key], in_axes=axes))
             out = fn(t, *vecs, args)
         return jax.tree_util.tree_map(np.asarray, out)
 
