@@ -116,6 +116,30 @@ def test_cache_dir_environment_variable_enables_cache_on_import(tmp_path):
     assert cache.is_dir() and any(cache.iterdir())
 
 
+def test_a_cache_entry_without_access_time_does_not_break_eviction(tmp_path):
+    """An entry left without its access-time file (by a process with an unbounded cache in the
+    same directory) made JAX's bounded cache fail at every write ("Error writing persistent
+    compilation cache entry"): the library gives such entries one, and bounds every cache it
+    switches on (the command line's too)."""
+    cache = tmp_path / "xdg" / "lobattodae"
+    cache.mkdir(parents=True)
+    (cache / "jit_left_behind-0123-cache").write_bytes(b"x" * 64)
+    code = (
+        "import jax, lobattodae as L; from lobattodae.examples import get_example; "
+        "ex = get_example('knife-edge'); "
+        "L.solve(ex.problem, L.LobattoIIIAIIIB(stages=2), (0.0, 0.2), ex.q0, ex.p0, n_steps=4, args=ex.args); "
+        "print(jax.config.jax_compilation_cache_max_size)"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("LOBATTODAE_NO_CACHE", "LOBATTODAE_CACHE_DIR")}
+    env.update(XDG_CACHE_HOME=str(tmp_path / "xdg"), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert "Error writing persistent compilation cache" not in proc.stderr
+    assert (cache / "jit_left_behind-0123-atime").is_file()
+    assert len(list(cache.glob("*-cache"))) > 1  # the solve's programs were stored
+    assert proc.stdout.strip() == str(1 << 30)
+
+
 def test_enable_compilation_cache_unwritable_directory(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")

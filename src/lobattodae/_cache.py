@@ -27,6 +27,8 @@ NO_CACHE_ENV = "LOBATTODAE_NO_CACHE"
 DEFAULT_MIN_COMPILE_TIME = 1.0
 #: The default cache's size bound in bytes (JAX evicts the least recently used entries).
 DEFAULT_MAX_SIZE = 1 << 30
+#: File name suffixes of a JAX cache entry and of its access time (``jax._src.lru_cache``).
+_CACHE_SUFFIX, _ATIME_SUFFIX = "-cache", "-atime"
 
 
 def cache_switched_off() -> bool:
@@ -43,7 +45,7 @@ def default_cache_dir() -> Path:
 
 
 def enable_compilation_cache(directory: str | os.PathLike | None = None, *, min_compile_time: float = 0.0,
-                             max_size: int = -1) -> Path:
+                             max_size: int = DEFAULT_MAX_SIZE) -> Path:
     """Keep compiled step loops on disk, so that a new process skips XLA compilation.
 
     A ``solve`` compiles its step loop on the first call for each problem, method and shape
@@ -54,7 +56,8 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None, *, min_
     (``jax_compilation_cache_dir``). ``import lobattodae`` already does (compilations of a
     second or more, at most 1 GiB, in the user cache directory; every compilation in
     ``$LOBATTODAE_CACHE_DIR`` when that is set); call this to choose the directory or to
-    store every entry, however fast it compiled (the ``lobattodae`` command line does).
+    store every entry, however fast it compiled (the ``lobattodae`` command line does; both
+    bounded to 1 GiB by default).
     ``LOBATTODAE_NO_CACHE=1`` keeps the library and the command line from switching it on.
 
     Parameters
@@ -65,8 +68,10 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None, *, min_
     min_compile_time : float
         Store only compilations that took at least this many seconds (0: every one).
     max_size : int
-        Bound on the cache's size in bytes, least recently used entries evicted (-1: none). JAX
-        needs the ``filelock`` package for it; without it the bound is dropped (-1).
+        Bound on the cache's size in bytes, least recently used entries evicted (default 1 GiB;
+        -1: none, for a directory of its own: JAX keeps no access times without a bound, and a
+        bounded process sharing the directory then cannot evict). JAX needs the ``filelock``
+        package for the bound; without it the bound is dropped (-1).
 
     Returns
     -------
@@ -91,8 +96,27 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None, *, min_
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     if max_size >= 0 and not _have_filelock():  # JAX bounds the size only with the filelock package
         max_size = -1
+    if max_size >= 0:
+        _add_missing_access_times(path)
     jax.config.update("jax_compilation_cache_max_size", int(max_size))
     return path
+
+
+def _add_missing_access_times(path: Path) -> None:
+    """Give every entry of a bounded cache the access-time file JAX's eviction reads.
+
+    JAX's bounded cache keeps ``<key>-cache`` and ``<key>-atime`` (8 bytes, little-endian
+    nanoseconds) per entry; an unbounded one writes no ``-atime``. An entry without one (left by
+    an unbounded process in the same directory) makes every later eviction fail, and JAX warns
+    at every cache write. Such entries get their file's modification time as access time."""
+    try:
+        names = set(os.listdir(path))
+        for name in names:
+            if name.endswith(_CACHE_SUFFIX) and name[: -len(_CACHE_SUFFIX)] + _ATIME_SUFFIX not in names:
+                stamp = (path / name).stat().st_mtime_ns
+                (path / (name[: -len(_CACHE_SUFFIX)] + _ATIME_SUFFIX)).write_bytes(stamp.to_bytes(8, "little"))
+    except OSError:  # a cache we cannot tidy stays as it is: JAX only warns
+        pass
 
 
 def _have_filelock() -> bool:
