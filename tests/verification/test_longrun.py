@@ -164,16 +164,19 @@ def test_long_run_reversible_energy_bounded_consistent():
 @pytest.mark.slow
 def test_reversible_control_over_ten_to_the_fifth_steps(contact):
     """10⁵ steps of s = 3 (t up to 1.7·10⁴): measured max |ΔH| 4.19e-5 in every decade of time
-    from t = 100 on (benchmarks/reversible.py: 4.18e-5 → 4.20e-5), PI at rtol = 1e-4 2.3e-2 in the
-    last decade and growing linearly (exponent 1.00)."""
+    from t = 100 on (benchmarks/reversible.py: 4.18e-5 → 4.20e-5). Error control (PI, step
+    doubling) given at least as many steps (rtol = 1e-2: 122,864 steps against 100,571) drifts
+    linearly (×9.9 from the first tenth to the last) and ends at 3.2e-4, 7.6× the reversible
+    control's bounded error (2026-11-27; at rtol = 1e-4 it takes 404,053 steps, still ×10.1)."""
     ex = contact
     t_end = 1.7e4
     rev = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, t_end), ex.q0, ex.p0, args=ex.args, save_every=50,
                   controller=ReversibleStepSize(), first_step=FIRST_STEP)
     pi = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, t_end), ex.q0, ex.p0, args=ex.args, save_every=50,
-                 rtol=1e-4, atol=1e-4)
+                 rtol=1e-2, atol=1e-2)
     assert rev.stats["n_steps"] > 100_000
+    assert pi.stats["n_steps"] >= rev.stats["n_steps"]  # the comparison does not starve error control
     g_rev, top_rev = energy_growth(ex, rev)
     g_pi, top_pi = energy_growth(ex, pi)
     assert g_rev < 1.5 and top_rev < 1e-4
-    assert g_pi > 5.0 and top_pi > 100 * top_rev
+    assert g_pi > 5.0 and top_pi > 3 * top_rev
