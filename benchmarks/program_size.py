@@ -7,7 +7,9 @@ case this script lowers ``method.step`` of that attempt, compiles it, and record
 * the StableHLO text size (what JAX hands to XLA),
 * the optimised HLO: instructions, fusions (each a kernel XLA:CPU generates code for, and
   launches at run time) and copies,
-* the compile time (XLA only; tracing and lowering apart).
+* the compile time (XLA only; tracing and lowering apart),
+
+with the XLA options the library compiles with (``lobattodae.compiler_options()``).
 
 The counts are deterministic (the same on every machine with the same jax); the compile time
 depends on the machine and its load: compare ratios within one run. Cases: the Chaplygin sleigh
@@ -34,6 +36,7 @@ import lobattodae as L  # noqa: E402
 from lib import cli  # noqa: E402
 from lib.output import log, md_table, results_path, run_meta, write_json  # noqa: E402
 from lib.problems import particle_chain  # noqa: E402
+from lobattodae._compile import jit  # noqa: E402
 from lobattodae._doubling import for_error_control  # noqa: E402
 
 JSON_PATH = results_path("program_size.json")
@@ -61,7 +64,7 @@ def measure(problem, q0, p0, args, stages: int) -> dict:
         return method.step(problem, 0.0, q0, p0, lam0, h, args, state)
 
     t = time.perf_counter()
-    lowered = jax.jit(attempt).lower(state, 0.01)
+    lowered = jit(attempt).lower(state, 0.01)  # compiled as the library compiles (lobattodae._compile)
     trace = time.perf_counter() - t
     t = time.perf_counter()
     compiled = lowered.compile()
