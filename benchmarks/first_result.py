@@ -6,6 +6,13 @@ the result:
 
 * ``knife-edge``: the knife edge, s = 4, adaptive (rtol = atol = 1e-8), to the end of its span;
 * ``falling-disk``: the falling disk, s = 4, adaptive (rtol = atol = 1e-8), to the end of its span;
+* ``andrews``: Andrews' squeezer (7 bodies, 6 holonomic constraints; the external test set),
+  s = 5, adaptive (rtol = atol = 1e-8), to t = 0.03;
+* ``bicycle``: the Whipple bicycle at 5 m/s, s = 4, 1000 constant steps over 10 s (the time
+  after the model is built; SymPy and code generation are timed apart);
+* ``dopri8-knife-edge``, ``dopri8-andrews``: diffrax's Dopri8 (PID, jitted, as
+  ``benchmarks/lib/baselines.py`` sets it up) on the index-1 form of the same problems, at the
+  same tolerance, for scale: the time from ``import diffrax`` to its first result;
 * ``sleigh-event``: the sleigh, s = 4, adaptive, with a heading event (then, in the same
   process, the same run without the event: the second compilation alone).
 
@@ -29,6 +36,16 @@ import subprocess
 import sys
 import tempfile
 
+#: diffrax's first result on a problem's index-1 ODE (``setup`` defines ode, t_end, q0, p0).
+DOPRI8 = """
+import sys; sys.path.insert(0, "benchmarks")
+{setup}
+t1 = time.perf_counter()
+from lib.baselines import Diffrax
+y, nacc, nsteps, ok = Diffrax(ode).final(t_end, ode.from_qp(q0, p0), 1e-8)
+assert ok
+print(f"Dopri8 first result {{time.perf_counter() - t1:.2f}} s (import diffrax + compile + run)")
+"""
 CASES = {
     "knife-edge": """
 ex = L.examples.get_example("knife-edge")
@@ -40,6 +57,32 @@ ex = L.examples.get_example("falling-disk")
 sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
 print(f"first result {time.perf_counter() - t0:.2f} s")
 """,
+    "andrews": """
+import sys; sys.path.insert(0, "benchmarks")
+from testset import andrews
+S = andrews.build()
+t1 = time.perf_counter()
+sol = L.solve(S.problem, L.LobattoIIIAIIIB(stages=5), S.t_span, S.q0, S.p0, args=S.args, rtol=1e-8, atol=1e-8)
+print(f"first result {time.perf_counter() - t0:.2f} s (solve {time.perf_counter() - t1:.2f} s)")
+""",
+    "bicycle": """
+from lobattodae.mechanics import bicycle as bike
+model = bike.whipple_bicycle()
+args = model.args()
+q0, p0 = bike.upright_state(model, 5.0, args, roll_rate=0.5)
+t1 = time.perf_counter()
+sol = L.solve(model.problem, L.LobattoIIIAIIIB(stages=4), (0.0, 10.0), q0, p0, n_steps=1000, args=args)
+print(f"first result {time.perf_counter() - t1:.2f} s after the model (import and model {t1 - t0:.2f} s)")
+""",
+    "dopri8-knife-edge": DOPRI8.format(setup="""
+from lib.odes import knife_edge
+ex = L.examples.get_example("knife-edge")
+ode, t_end, q0, p0 = knife_edge(ex.args), ex.t_span[1], ex.q0, ex.p0"""),
+    "dopri8-andrews": DOPRI8.format(setup="""
+from lib.odes import andrews as andrews_ode
+from testset import andrews
+S = andrews.build()
+ode, t_end, q0, p0 = andrews_ode(andrews.PROBLEM), S.t_span[1], S.q0, S.p0"""),
     "sleigh-event": """
 ex = L.examples.get_example("sleigh")
 def heading(t, q, p, args): return q[2] - 0.5

@@ -90,18 +90,20 @@ def test_row_capacity_holds_every_row_a_chunk_can_keep(length, every):
     """Saved rows in a chunk of ``length`` attempts: the multiples of ``every`` among ≤ length
     consecutive step counts (≤ length // every + 1) and the final step."""
     cap = row_capacity(length, every)
-    power_of_two = cap & (cap - 1) == 0
-    assert cap == length or (cap >= length // every + 2 and power_of_two and cap < length)
+    assert cap == length or length // every + 2 <= cap < length
 
 
 def test_a_sparse_output_chunk_runs_its_whole_length(knife):
-    """With save_every=5 the chunk's buffer is smaller than its length, yet the chunk runs every
-    attempt it may (a too-small buffer would end it early) and keeps exactly the 5th rows."""
+    """With save_every=50 > 32 the buffer of a 32-attempt chunk holds 2 rows, yet the chunk runs
+    every attempt it may (a too-small buffer would end it early) and keeps exactly the 50th
+    row of the sixty steps."""
     m = L.LobattoIIIAIIIB(stages=3)
     c = ConstantStepSize()
     start = _sixty_steps(knife)
-    assert row_capacity(64, 5) < 64
-    state, chunk, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64, 5)
+    assert row_capacity(32, 50) == 2 and row_capacity(64, 5) == 64
+    state, chunk, packing = start_host(knife.problem, m, c, Output(), *start, knife.args, 32, 50)
     _, full, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64)
-    assert int(state.n_accepted) == 60 and int(chunk.n_rows) == 12
-    np.testing.assert_array_equal(chunk.rows.q[:12], full.rows.q[4:60:5])
+    assert int(state.n_accepted) == 32 and int(chunk.n_rows) == 0
+    state, chunk = run_host(knife.problem, m, c, Output(), packing, state, knife.args, 32, 50)
+    assert int(state.n_accepted) == 60 and int(chunk.n_rows) == 2  # the 50th step point and the last
+    np.testing.assert_array_equal(chunk.rows.q[:2], full.rows.q[[49, 59]])

@@ -119,10 +119,12 @@ def _run_packed(problem, method, controller, output, packing, fresh, floats, int
 
 def row_capacity(length: int, every: int) -> int:
     """Step-point rows a chunk of ``length`` attempts can need when keeping every ``every``-th
-    one (and the last), rounded up to a power of two (few distinct buffer shapes to compile):
-    a sparse output (``save_every="final"``) does not allocate, fill and return ``length``
-    rows per chunk."""
-    return min(length, 1 << (length // every + 1).bit_length())
+    one (and the last). Two sizes, so that a new ``save_every`` does not compile the loop
+    again: ``length`` for every ``every ≤ length`` (every integer ``save_every`` runs the
+    program of ``save_every=1``), and 2 when a chunk keeps at most one multiple of ``every``
+    and its last row (``save_every="final"``: a sparse output does not allocate, fill and
+    return ``length`` rows per chunk, which on a short run is most of its fixed cost)."""
+    return length if every <= length else min(length, 2)
 
 
 _PACKINGS: dict = {}

@@ -69,10 +69,13 @@ def project_positions(problem, t, q, p, args, iterations=POSITION_NEWTON_ITERATI
     # D = D_p f ψ_qᵀ: one directional derivative of f in p per constraint
     f_p = jax.vmap(lambda v: jax.jvp(lambda pp: problem.f(t, q, pp, args), (p,), (v,))[1])
     direction = f_p(psi_q).T  # (n, k)
-    kappa = jnp.zeros(psi_q.shape[0], q.dtype)
-    for _ in range(iterations):  # unrolled: a fixed, small number of steps
+
+    def newton(_, kappa):
         residual, jac = value_and_jacobian(lambda kk: psi(t, q + direction @ kk, args), kappa)
-        kappa = kappa - small_solve(jac, residual)
+        return kappa - small_solve(jac, residual)
+
+    # a fixed number of steps in a loop: ψ and its Jacobian are compiled once, not once per step
+    kappa = jax.lax.fori_loop(0, iterations, newton, jnp.zeros(psi_q.shape[0], q.dtype))
     return q + direction @ kappa
 
 
