@@ -6,11 +6,12 @@ pass pipeline per kernel: for programs of many small kernels that setup, not the
 of the compile time. XLA's older elemental emitters compile the same fusions in about half the
 time and run them as fast (``benchmarks/RESULTS.md``, 2026-11-27 (night): an error-controlled
 attempt on the sleigh 2.9 → 1.5 s to compile, 255 against 261 µs to run; the knife edge's first
-result 7.3 → 4.2 s; run times of whole solves within ±4 %). So every program the library
-compiles is compiled with :data:`COMPILER_OPTIONS`:
+result 6.3–7.1 → 3.7 s, Andrews' squeezer 18 → 12.5 s; run times of whole solves within 3 %).
+So every program the library compiles is compiled with :data:`COMPILER_OPTIONS`:
 
 * only where the installed XLA knows the options (checked once per process, at the first
-  compilation: an XLA that has dropped them compiles with its defaults);
+  compilation): jax 0.10 does; the XLA of jax 0.11.2 has dropped the elemental emitters, and
+  there the programs compile with XLA's defaults;
 * not where the user chose for themselves: an option named in ``$XLA_FLAGS`` is left to it.
 
 The options are per program: other programs of the process keep XLA's defaults. Users who
