@@ -73,7 +73,7 @@ def test_new_numbers_do_not_recompile(knife):
     L.solve(knife.problem, m, (1.0, 4.5), knife.q0, knife.p0, n_steps=33, args=knife.args)
     L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=33, args=knife.args._replace(g=2.5))
     assert _run_packed._cache_size() == size
-    # an integer save_every runs the program of save_every=1 (only "final" has buffers of its own)
+    # an integer save_every up to the chunk length runs the program of save_every=1
     for every in (2, 7, 100):
         sol = L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=100, args=knife.args,
                       save_every=every)

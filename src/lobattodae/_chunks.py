@@ -120,10 +120,11 @@ def _run_packed(problem, method, controller, output, packing, fresh, floats, int
 def row_capacity(length: int, every: int) -> int:
     """Step-point rows a chunk of ``length`` attempts can need when keeping every ``every``-th
     one (and the last). Two sizes, so that a new ``save_every`` does not compile the loop
-    again: ``length`` for every ``every ≤ length`` (every integer ``save_every`` runs the
-    program of ``save_every=1``), and 2 when a chunk keeps at most one multiple of ``every``
-    and its last row (``save_every="final"``: a sparse output does not allocate, fill and
-    return ``length`` rows per chunk, which on a short run is most of its fixed cost)."""
+    again: ``length`` for ``every ≤ length`` (every integer ``save_every`` up to the chunk
+    length runs the program of ``save_every=1``), and 2 when a chunk keeps at most one
+    multiple of ``every`` and its last row (``save_every="final"`` and larger integers: a sparse
+    output does not allocate, fill and return ``length`` rows per chunk, which on a short run is
+    most of its fixed cost)."""
     return length if every <= length else min(length, 2)
 
 
