@@ -41,3 +41,59 @@ def test_c_tol_belongs_to_the_embedded_estimate():
     """The default estimate uses the tolerances as given: a tolerance constant is refused."""
     with pytest.raises(ValueError, match="c_tol maps the tolerances of the embedded estimate"):
         L.PIController(c_tol=2.0)
+
+
+def _pi_state(c: "L.PIController", h, order):
+    """A PI controller's state at t = 0 on (0, 1) with atol = 1, rtol = 0: the error scale of a
+    step of size h is h (per unit step), so a report with error ``E·h`` reads err = E."""
+    from lobattodae._controllers import AdaptiveState
+
+    f = jnp.float64
+    return AdaptiveState(t=f(0.0), h=f(h), t0=f(0.0), t_end=f(1.0), err_prev=f(1.0), rejected=jnp.asarray(False),
+                         h_rejected=f(0.0), err_rejected=f(jnp.inf), rtol=f(0.0), atol=f(1.0), max_step=f(jnp.inf),
+                         order=f(order), span=f(1.0), n_rejected=jnp.asarray(0, jnp.int32))
+
+
+def _attempt(c, st, err_of_h):
+    """One attempt of the proposed size against the error model ``err_of_h``."""
+    _, h = c.proposal(st)
+    z = jnp.zeros(2)
+    e = jnp.full(2, err_of_h(float(h)) * float(h))
+    return h, c.adapt(st, None, None, StepReport(jnp.asarray(True), jnp.asarray(0), st.t, h, z, z, e, z[:1], z[:1], z[:1]))
+
+
+@pytest.mark.parametrize("power, factor", [(4.0, lambda err: 0.9 * err**-0.25), (1.0, lambda err: 0.9 / err),
+                                           (-1.0, lambda err: 0.2)])
+def test_a_second_rejection_shrinks_by_the_observed_power_of_h(power, factor):
+    """Two rejected attempts from the same point differ only in h: the second shrinks by the
+    power of h its error actually fell with (h^4 and h^1 where the rule assumes h^8; an error
+    that grew on the shorter step, as a mode beyond the stability limit reads per unit step:
+    fac_min), not by the asymptotic rule err^(-1/8). (Where the error does fall like h^8, the
+    first shrink already passes.)"""
+    c = L.PIController()
+    k = 8.0
+    err_of_h = lambda h: 30.0 * h**power  # noqa: E731
+    st = _pi_state(c, 1.0, k)
+    h1, (accept, st, _) = _attempt(c, st, err_of_h)
+    assert not bool(accept)
+    np.testing.assert_allclose(float(st.h), 0.9 * 30.0 ** (-1 / k), rtol=1e-12)  # the first: asymptotic
+    h2, (accept, st, _) = _attempt(c, st, err_of_h)
+    err2 = err_of_h(float(h2))
+    assert not bool(accept) and err2 > 1
+    np.testing.assert_allclose(float(st.h) / float(h2), min(max(factor(err2), c.fac_min), 0.9), rtol=1e-10)
+    assert float(st.h) / float(h2) < 0.9 * err2 ** (-1 / k)
+
+
+def test_a_step_beyond_the_stability_limit_is_left_in_few_attempts():
+    """An error that does not fall until h is below 1e-3 (a fast mode outside the stability
+    region): the asymptotic rule alone would shrink by 0.9·10^(-1/8) = 0.68 per attempt, 19
+    rejections; the observed power takes fac_min after the second."""
+    c = L.PIController()
+    st = _pi_state(c, 1.0, 8.0)
+    rejected = 0
+    while True:
+        h, (accept, st, _) = _attempt(c, st, lambda h: 10.0 if h > 1e-3 else 1e-3)
+        if bool(accept):
+            break
+        rejected += 1
+    assert rejected <= 6 and float(h) > 1e-4

@@ -184,6 +184,8 @@ class AdaptiveState(NamedTuple):
     t_end: jax.Array
     err_prev: jax.Array  # the last accepted step's scaled error (PI memory)
     rejected: jax.Array  # bool: the last attempt was rejected (no growth on the next step)
+    h_rejected: jax.Array  # the size and scaled error of the last rejected attempt (see PIController)
+    err_rejected: jax.Array
     rtol: jax.Array  # internal tolerances (see PIController)
     atol: jax.Array
     max_step: jax.Array
@@ -214,6 +216,9 @@ C_TOL = {2: 0.61, 3: 0.98, 4: 4.9, 5: 13.7}
 #: t = 372; with this floor 9,467 steps, none rejected, error 3.6e-11; with 1e-14: 13,474
 #: steps, 1,443 rejected, error 4.0e-10, the extra steps' round-off).
 ROUNDOFF_FLOOR = 1e-13
+#: The power of h that :meth:`PIController._observed_order` gives when a shorter attempt had no
+#: smaller error: ``err^(-1/STALLED_ORDER)`` is then far below ``fac_min``, which the step takes.
+STALLED_ORDER = 0.05
 #: The local error estimates :class:`PIController` knows.
 ESTIMATES = ("doubling", "embedded")
 
@@ -249,7 +254,11 @@ class PIController(_TimeAndEnd):
         h_new = h · clip(safety · err^(-β₁/k) · err_prev^(β₂/k), fac_min, fac_max),
 
     ``k = 2s - 2`` (err ∝ h^(2s-2)), ``β₁ = 0.7``, ``β₂ = 0.4``, no growth right after a
-    rejection; a step whose Newton solve fails is retried with a quarter of the size. Factors in
+    rejection; a rejected step is retried with ``h · clip(safety · err^(-1/k), fac_min, 0.9)``,
+    where a second rejection in a row uses the power of h by which the error actually fell
+    between the two attempts when it is below k (at least 1; ``fac_min`` when it did not fall:
+    a fast mode beyond the stability limit); a step whose Newton solve fails is retried with a
+    quarter of the size. Factors in
     ``[1, hysteresis]`` keep h (and the reused Jacobians, see ``H_CHANGE_REFRESH``).
 
     **The cheap estimate** (``estimate="embedded"``, opt-in) costs no extra solve: the
@@ -397,7 +406,8 @@ class PIController(_TimeAndEnd):
         dtype = q0.dtype
         return AdaptiveState(
             t=t0, h=h.astype(dtype), t0=t0, t_end=t1, err_prev=jnp.asarray(1.0, dtype),
-            rejected=jnp.asarray(False), rtol=rtol, atol=atol, max_step=options.max_step,
+            rejected=jnp.asarray(False), h_rejected=jnp.asarray(0.0, dtype), err_rejected=jnp.asarray(jnp.inf, dtype),
+            rtol=rtol, atol=atol, max_step=options.max_step,
             order=jnp.asarray(float(k), dtype), n_rejected=jnp.asarray(0, jnp.int32),
             span=jnp.abs(t1 - t0).astype(dtype),
         )
@@ -464,7 +474,8 @@ class PIController(_TimeAndEnd):
         grow = self.safety * safe_err ** (-self.beta1 / k) * st.err_prev ** (self.beta2 / k)
         grow = jnp.clip(grow, self.fac_min, jnp.where(st.rejected, 1.0, self.fac_max))
         grow = jnp.where((grow >= 1.0) & (grow <= self.hysteresis), 1.0, grow)
-        shrink = jnp.where(usable, jnp.clip(self.safety * safe_err ** (-1.0 / k), self.fac_min, 0.9), 0.25)
+        shrink = jnp.where(usable, jnp.clip(self.safety * safe_err ** (-1.0 / self._observed_order(st, report, err, k)),
+                                            self.fac_min, 0.9), 0.25)
         # the step-size policy is a heuristic, not part of the model: derivatives follow the step
         # sequence the run chose (only the clipping to the end of the interval moves with t_span)
         h_new = report.h * jax.lax.stop_gradient(jnp.where(accept, grow, shrink))
@@ -475,12 +486,32 @@ class PIController(_TimeAndEnd):
             t=t, h=h_new,
             err_prev=jnp.where(accept, jnp.maximum(err, 1e-4), st.err_prev),
             rejected=~accept,
+            h_rejected=jnp.where(accept, 0.0, report.h), err_rejected=jnp.where(accept, jnp.inf, err),
             n_rejected=st.n_rejected + (~accept).astype(jnp.int32),
         )
         finished = accept & (t == st.t_end)
         small = ~finished & _too_small(h_new, t, st.t0, st.t_end)
         result = jnp.where(small, Result.STEP_SIZE_TOO_SMALL, Result.SUCCESSFUL).astype(jnp.int32)
         return accept, new, result
+
+    @staticmethod
+    def _observed_order(st: AdaptiveState, report: StepReport, err, k):
+        """The power of h by which a rejected step's error fell since the attempt before it.
+
+        Two rejected attempts in a row start from the same point and differ only in h, so
+        ``log(err_before / err) / log(h_before / h)`` measures how the error depends on h
+        there. Where it is below k (the estimate is outside its asymptotic regime: a fast
+        mode beyond the method's stability limit, whose undamped amplitude the per-unit-step
+        test even reads as *larger* on a shorter step), the step shrinks by the observed power
+        (at least 1; by ``fac_min`` where the error did not fall: STALLED_ORDER) instead of retrying
+        sizes that the asymptotic rule ``err^(-1/k)`` lowers by a few per cent at a time.
+        Otherwise, and after an accepted step, it is k.
+        """
+        again = st.rejected & (jnp.abs(report.h) < jnp.abs(st.h_rejected)) & jnp.isfinite(st.err_rejected)
+        fell = jnp.log(st.err_rejected / jnp.maximum(err, 1e-300))
+        shorter = jnp.log(jnp.abs(st.h_rejected) / jnp.abs(report.h))
+        observed = jnp.where(fell > 0, jnp.clip(fell / jnp.where(again, shorter, 1.0), 1.0, k), STALLED_ORDER)
+        return jnp.where(again, observed, k)
 
     def stop_at(self, st: AdaptiveState, t_stop) -> AdaptiveState:
         """Move the end of the run to ``t_stop`` (a terminal event's zero) and aim the next step
