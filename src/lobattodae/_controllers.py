@@ -183,8 +183,7 @@ class AdaptiveState(NamedTuple):
     t0: jax.Array
     t_end: jax.Array
     err_prev: jax.Array  # the last accepted step's scaled error (PI memory)
-    rejected: jax.Array  # bool: the last attempt was rejected (no growth on the next step)
-    h_rejected: jax.Array  # the size and scaled error of the last rejected attempt (see PIController)
+    h_rejected: jax.Array  # the size and scaled error of the last attempt if it was rejected (0, inf if not)
     err_rejected: jax.Array
     rtol: jax.Array  # internal tolerances (see PIController)
     atol: jax.Array
@@ -192,6 +191,11 @@ class AdaptiveState(NamedTuple):
     order: jax.Array  # k, the power of h in the controlled error (PIController.error_exponent)
     span: jax.Array  # |t1 - t0| of the requested interval (the unit of the error per unit step)
     n_rejected: jax.Array  # int32
+
+    @property
+    def rejected(self):
+        """The last attempt was rejected (no growth on the next step)."""
+        return self.h_rejected != 0
 
 
 class _TimeAndEnd:
@@ -406,7 +410,7 @@ class PIController(_TimeAndEnd):
         dtype = q0.dtype
         return AdaptiveState(
             t=t0, h=h.astype(dtype), t0=t0, t_end=t1, err_prev=jnp.asarray(1.0, dtype),
-            rejected=jnp.asarray(False), h_rejected=jnp.asarray(0.0, dtype), err_rejected=jnp.asarray(jnp.inf, dtype),
+            h_rejected=jnp.asarray(0.0, dtype), err_rejected=jnp.asarray(jnp.inf, dtype),
             rtol=rtol, atol=atol, max_step=options.max_step,
             order=jnp.asarray(float(k), dtype), n_rejected=jnp.asarray(0, jnp.int32),
             span=jnp.abs(t1 - t0).astype(dtype),
@@ -485,7 +489,6 @@ class PIController(_TimeAndEnd):
         new = st._replace(
             t=t, h=h_new,
             err_prev=jnp.where(accept, jnp.maximum(err, 1e-4), st.err_prev),
-            rejected=~accept,
             h_rejected=jnp.where(accept, 0.0, report.h), err_rejected=jnp.where(accept, jnp.inf, err),
             n_rejected=st.n_rejected + (~accept).astype(jnp.int32),
         )
@@ -507,7 +510,8 @@ class PIController(_TimeAndEnd):
         sizes that the asymptotic rule ``err^(-1/k)`` lowers by a few per cent at a time.
         Otherwise, and after an accepted step, it is k.
         """
-        again = st.rejected & (jnp.abs(report.h) < jnp.abs(st.h_rejected)) & jnp.isfinite(st.err_rejected)
+        # a shorter retry of a rejected attempt (h_rejected is 0 after an accepted one) whose error was finite
+        again = (jnp.abs(report.h) < jnp.abs(st.h_rejected)) & jnp.isfinite(st.err_rejected)
         fell = jnp.log(st.err_rejected / jnp.maximum(err, 1e-300))
         shorter = jnp.log(jnp.abs(st.h_rejected) / jnp.abs(report.h))
         observed = jnp.where(fell > 0, jnp.clip(fell / jnp.where(again, shorter, 1.0), 1.0, k), STALLED_ORDER)
