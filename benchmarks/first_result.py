@@ -15,6 +15,9 @@ the result:
   same tolerance, for scale: the time from ``import diffrax`` to its first result;
 * ``sleigh-event``: the sleigh, s = 4, adaptive, with a heading event (then, in the same
   process, the same run without the event: the second compilation alone).
+* ``output-options``: the sleigh, s = 4, adaptive, then in the same process the same run with
+  each output option in turn (``t_eval`` of 50 and 500 times, stepped onto and interpolated,
+  ``dense_output``, ``save_every``): the time of each first call, compilation included.
 
 ``--cache cold`` (default) runs with ``LOBATTODAE_NO_CACHE=1``; ``--cache warm`` uses a
 persistent compilation cache in a temporary directory, filled by one run first.
@@ -91,6 +94,21 @@ sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, 
 t1 = time.perf_counter()
 sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
 print(f"with the event {t1 - t0:.2f} s, then without it {time.perf_counter() - t1:.2f} s")
+""",
+    "output-options": """
+import numpy as np
+ex = L.examples.get_example("sleigh")
+(a, b), m = ex.t_span, L.LobattoIIIAIIIB(stages=4)
+times, first = [], None
+for kw in ({}, {"t_eval": np.linspace(a, b, 50)}, {"t_eval": np.linspace(a, b, 500)},
+           {"t_eval": np.linspace(a, b, 50), "t_eval_rows": "interpolate"}, {"dense_output": True},
+           {"save_every": 10}, {"save_every": "final"}):
+    t1 = time.perf_counter()
+    sol = L.solve(ex.problem, m, ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8, **kw)
+    times.append(time.perf_counter() - t1)
+    first = first or time.perf_counter() - t0
+print(f"first result {first:.2f} s; then t_eval 50, 500, interpolated, dense_output, "
+      f"save_every 10, 'final': " + ", ".join(f"{x:.2f}" for x in times[1:]) + f" s; all {time.perf_counter() - t0:.2f} s")
 """,
 }
 PREAMBLE = "import time; t0 = time.perf_counter()\nimport lobattodae as L\nL.set_cpu_threads(1)\n"

@@ -8,7 +8,7 @@ import pytest
 
 import lobattodae as L
 from lobattodae._controllers import ConstantStepSize, ControlOptions, PIController
-from lobattodae._chunks import StatePacking, init_host, row_capacity, run_host, start_host
+from lobattodae._chunks import StatePacking, init_host, recording_of, run_host, start_host
 from lobattodae._loop import Output
 from lobattodae.examples import get_example
 
@@ -84,26 +84,16 @@ def test_the_first_chunk_initialises_the_state_it_would_get_from_init_host(knife
     np.testing.assert_array_equal(np.asarray(rest.q), np.asarray(ref_state.q))
 
 
-@pytest.mark.parametrize("length", [1, 16, 100, 2048])
-@pytest.mark.parametrize("every", [1, 2, 3, 7, 100, 2**31 - 1])
-def test_row_capacity_holds_every_row_a_chunk_can_keep(length, every):
-    """Saved rows in a chunk of ``length`` attempts: the multiples of ``every`` among ≤ length
-    consecutive step counts (≤ length // every + 1) and the final step."""
-    cap = row_capacity(length, every)
-    assert cap == length or length // every + 2 <= cap < length
-
-
 def test_a_sparse_output_chunk_runs_its_whole_length(knife):
-    """With save_every=50 > 32 the buffer of a 32-attempt chunk holds 2 rows, yet the chunk runs
-    every attempt it may (a too-small buffer would end it early) and keeps exactly the 50th
-    row of the sixty steps."""
+    """With save_every=50 a 32-attempt chunk runs every attempt it may and keeps no row, and
+    the next keeps exactly the 50th row of the sixty steps and the last; the recording is data,
+    so both run the program of every step point."""
     m = L.LobattoIIIAIIIB(stages=3)
     c = ConstantStepSize()
     start = _sixty_steps(knife)
-    assert row_capacity(32, 50) == 2 and row_capacity(64, 5) == 64
-    state, chunk, packing = start_host(knife.problem, m, c, Output(), *start, knife.args, 32, 50)
+    state, chunk, packing = start_host(knife.problem, m, c, Output(), *start, knife.args, 32, recording_of(32, 50))
     _, full, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64)
     assert int(state.n_accepted) == 32 and int(chunk.n_rows) == 0
-    state, chunk = run_host(knife.problem, m, c, Output(), packing, state, knife.args, 32, 50)
+    state, chunk = run_host(knife.problem, m, c, Output(), packing, state, knife.args, 32, recording_of(32, 50))
     assert int(state.n_accepted) == 60 and int(chunk.n_rows) == 2  # the 50th step point and the last
     np.testing.assert_array_equal(chunk.rows.q[:2], full.rows.q[[49, 59]])

@@ -53,13 +53,13 @@ def _there_and_back(ex, method, controller, n=CHUNK):
     q0, p0, lam0 = (jnp.asarray(x) for x in (ex.q0, ex.p0, ex.lam0))
     state, packing = init_host(ex.problem, method, controller, Output(), F64(0.0), F64(1e6), options, q0, p0, lam0,
                                ex.args)
-    state, fwd = run_host(ex.problem, method, controller, Output(), packing, state, ex.args, n, 1, None)
+    state, fwd = run_host(ex.problem, method, controller, Output(), packing, state, ex.args, n)
     t_n = state.controller.t
     back, packing = init_host(ex.problem, method, controller, Output(), t_n, F64(0.0), options, state.q, state.p,
                               state.lam, ex.args)
     turned = _turn_around_fn(ex.problem, controller)(state.controller, state.q, state.p, state.lam, ex.args)
     back, bwd = run_host(ex.problem, method, controller, Output(), packing, back._replace(controller=turned), ex.args,
-                         n, 1, None)
+                         n)
     k = int(bwd.n_rows)
     rows = lambda chunk, count: {f: np.asarray(getattr(chunk.rows, f))[:count] for f in ("t", "q", "p", "lam")}
     return rows(fwd, int(fwd.n_rows)), rows(bwd, k), back

@@ -1,6 +1,7 @@
 """solve(): Solution contents, compilation caching, float64, a run that fails (the prefix, the
 status, never NaN as success) and automatic recovery of failed steps."""
 
+import functools
 import subprocess
 import sys
 
@@ -73,12 +74,44 @@ def test_new_numbers_do_not_recompile(knife):
     L.solve(knife.problem, m, (1.0, 4.5), knife.q0, knife.p0, n_steps=33, args=knife.args)
     L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=33, args=knife.args._replace(g=2.5))
     assert _run_packed._cache_size() == size
-    # an integer save_every up to the chunk length runs the program of save_every=1
-    for every in (2, 7, 100):
+    # what is recorded is data, not program: every save_every, t_eval of any length (stepped
+    # onto or interpolated) and the dense output run the program of the plain run
+    for every in (2, 7, 100, 5000, "final"):
         sol = L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=100, args=knife.args,
                       save_every=every)
-        assert len(sol.t) == 100 // every + 1 + (100 % every > 0)
+        assert len(sol.t) == (2 if every in (5000, "final") else 100 // every + 1 + (100 % every > 0))
+    a, b = knife.t_span
+    for times in (np.linspace(a, b, 5), np.linspace(a, b, 3001)):
+        sol = L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=100, args=knife.args, t_eval=times)
+        np.testing.assert_array_equal(sol.t, times)
+    sol = L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=100, args=knife.args, dense_output=True)
+    assert sol.sol is not None
     assert _run_packed._cache_size() == size
+
+
+def test_output_options_share_the_error_controlled_program(sleigh):
+    """Under error control too, rows stepped onto or interpolated at any number of t_eval times,
+    the dense output and save_every change what is recorded, not the compiled loop; the rows
+    are those of a run that records only them (a t_eval longer than a chunk spans several)."""
+    ex = sleigh
+    m = L.LobattoIIIAIIIB(stages=3)
+    run = functools.partial(L.solve, ex.problem, m, (0.0, 3.0), ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
+    plain = run()
+    size = _run_packed._cache_size()
+    times = np.linspace(0.0, 3.0, 2501)  # more than a chunk's window of 2048 times
+    stepped = run(t_eval=times)
+    interpolated = run(t_eval=times, t_eval_rows="interpolate")
+    dense = run(dense_output=True)
+    final = run(save_every="final")
+    assert _run_packed._cache_size() == size
+    np.testing.assert_array_equal(stepped.t, times)
+    np.testing.assert_array_equal(interpolated.t, times)
+    np.testing.assert_array_equal(final.q[-1], plain.q[-1])
+    np.testing.assert_array_equal(dense.q, plain.q)
+    np.testing.assert_allclose(dense.sol(times)[0], interpolated.q, rtol=0, atol=1e-14)
+    # stepped-onto rows are step points: on the constraint to round-off, and more steps than the plain run
+    assert stepped.stats["n_steps"] > plain.stats["n_steps"]
+    assert np.max(stepped.stats["constraint_residual"]) < 1e-14
 
 
 def test_long_run_is_one_compiled_loop_per_chunk(knife):

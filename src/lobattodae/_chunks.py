@@ -26,11 +26,11 @@ import numpy as np
 
 from . import _compile
 from ._controllers import ControlOptions
-from ._loop import Chunk, Output, State, init_state, run
+from ._loop import Chunk, Output, Recording, State, init_state, run
 from ._dense import dense_size
 from ._rows import Rows, unpack_rows
 
-__all__ = ["CHUNK", "Progress", "StatePacking", "init_host", "row_capacity", "run_host", "start_host"]
+__all__ = ["CHUNK", "Progress", "StatePacking", "init_host", "recording_of", "run_host", "start_host"]
 
 #: Step attempts per compiled chunk in :func:`~lobattodae.solve` (a fixed length: a new number
 #: of steps never recompiles; a short run stops early and leaves the rest of the buffers unused).
@@ -104,28 +104,35 @@ def _init_packed(problem, method, controller, output, packing, t0, t1, options, 
     return packing.pack(init_state(problem, method, controller, output, t0, t1, options, q0, p0, lam0, args))
 
 
-@_compile.jit(static_argnames=("problem", "method", "controller", "output", "packing", "length",
-                                             "capacity"))
-def _run_packed(problem, method, controller, output, packing, fresh, floats, ints, start, args, length, every, t_eval,
-                capacity):
+@_compile.jit(static_argnames=("problem", "method", "controller", "output", "packing", "length"))
+def _run_packed(problem, method, controller, output, packing, fresh, floats, ints, start, args, length, recording):
     """:func:`run` from the packed state, or (``fresh``) from the state :func:`init_state` makes of
     ``start = (t0, t1, options, q0, p0, lam0)``: a run's first chunk needs no call of its own to
     initialise, and every chunk runs the same compiled program."""
     state = jax.lax.cond(fresh, lambda: init_state(problem, method, controller, output, *start, args),
                          lambda: packing.unpack(floats, ints))
-    state, chunk = run(problem, method, controller, output, state, args, length, every, t_eval, capacity=capacity)
+    state, chunk = run(problem, method, controller, output, state, args, length, recording)
     return packing.pack(state), chunk
 
 
-def row_capacity(length: int, every: int) -> int:
-    """Step-point rows a chunk of ``length`` attempts can need when keeping every ``every``-th
-    one (and the last). Two sizes, so that a new ``save_every`` does not compile the loop
-    again: ``length`` for ``every ≤ length`` (every integer ``save_every`` up to the chunk
-    length runs the program of ``save_every=1``), and 2 when a chunk keeps at most one
-    multiple of ``every`` and its last row (``save_every="final"`` and larger integers: a sparse
-    output does not allocate, fill and return ``length`` rows per chunk, which on a short run is
-    most of its fixed cost)."""
-    return length if every <= length else min(length, 2)
+def recording_of(length: int, every=1, t_eval=None, k_eval=0, at_t_eval=None, step_to_t_eval=None,
+                 dense=False) -> Recording:
+    """The :class:`~lobattodae._loop.Recording` of a chunk of ``length`` attempts as host
+    arrays of fixed dtypes and shapes (one compiled signature for every choice): the window of
+    ``length`` output times from the ``k_eval``-th on (NaN-padded; a chunk writes at most
+    ``length`` rows, so it never needs more), and the switches (``at_t_eval``: default, whether
+    ``t_eval`` is given; ``step_to_t_eval``: default, the same)."""
+    window = np.full(length, np.nan)
+    if t_eval is not None:
+        part = np.asarray(t_eval, np.float64)[k_eval: k_eval + length]
+        window[: len(part)] = part
+    given = t_eval is not None
+    return Recording(
+        np.asarray(min(int(every), np.iinfo(np.int32).max), np.int32), window, np.asarray(k_eval, np.int32),
+        np.asarray(given if at_t_eval is None else at_t_eval), np.asarray(given if step_to_t_eval is None
+                                                                          else step_to_t_eval),
+        np.asarray(bool(dense)),
+    )
 
 
 _PACKINGS: dict = {}
@@ -168,33 +175,36 @@ def init_host(problem, method, controller, output: Output, t0, t1, options: Cont
 
 
 def start_host(problem, method, controller, output: Output, t0, t1, options: ControlOptions, q0, p0, lam0, args,
-               length: int, every=1, t_eval=None) -> tuple[State, Chunk, StatePacking]:
+               length: int, recording: Recording | None = None) -> tuple[State, Chunk, StatePacking]:
     """:func:`init_host` and the first :func:`run_host` in one compiled call (one dispatch and
     one state transfer less: most of a short run's fixed cost); returns the state after the
     chunk, the chunk and the layout to hand to :func:`run_host` for the next chunks."""
     start = _start(t0, t1, options, q0, p0, lam0)
     packing = _state_packing(problem, method, controller, output, *start, args)
     packed = packing.empty()
-    return *_run_chunk(problem, method, controller, output, packing, True, packed, start, args, length, every,
-                       t_eval), packing
+    return *_run_chunk(problem, method, controller, output, packing, True, packed, start, args, length,
+                       recording), packing
 
 
 def run_host(problem, method, controller, output: Output, packing: StatePacking, state: State, args, length: int,
-             every=1, t_eval=None) -> tuple[State, Chunk]:
+             recording: Recording | None = None) -> tuple[State, Chunk]:
     """:func:`run`, compiled once per (problem, method, controller, output, shapes, length), from
     and to a state on the host: it travels packed (:class:`StatePacking`), two arrays
-    instead of fifty, which is most of the cost of a short chunk's dispatch."""
+    instead of fifty, which is most of the cost of a short chunk's dispatch. ``recording``
+    (:func:`recording_of`; default: every step point) is data: any choice runs the same
+    program."""
     n, m = np.shape(state.q)[-1], np.shape(state.lam)[-1]
     unused = _start(0.0, 0.0, ControlOptions(0, 0.0, 0.0, 0.0, 0.0), np.zeros(n), np.zeros(n), np.zeros(m))
     return _run_chunk(problem, method, controller, output, packing, False, packing.pack(state, np), unused, args,
-                      length, every, t_eval)
+                      length, recording)
 
 
-def _run_chunk(problem, method, controller, output, packing, fresh, packed, start, args, length, every, t_eval):
+def _run_chunk(problem, method, controller, output, packing, fresh, packed, start, args, length, recording):
     """One compiled chunk; its output comes to the host in one transfer, and the rows are
     unpacked there (NumPy views)."""
+    recording = recording_of(length) if recording is None else recording
     out = _run_packed(problem, method, controller, output, packing, np.asarray(fresh), *packed, start, args, length,
-                      every, t_eval, row_capacity(length, int(every)))
+                      recording)
     packed, chunk = jax.device_get(out)
     n, m = start[3].shape[-1], start[5].shape[-1]
     return packing.unpack(*packed), chunk._replace(rows=unpack_rows(*chunk.rows, n, m))
@@ -213,11 +223,12 @@ class Progress(NamedTuple):
     segments: Any = None  # _io.checkpoint.Segments of the last checkpoint written or read
 
     @classmethod
-    def start(cls, state: State, output: Output, recoveries: int = 0) -> Progress:
-        """No rows yet (their shapes from ``state``; which kinds from ``output``)."""
+    def start(cls, state: State, dense: bool, events: bool, recoveries: int = 0) -> Progress:
+        """No rows yet (their shapes from ``state``); ``dense``, ``events``: whether the run
+        records dense-output data and event zeros."""
         n, m, (pieces, s) = state.q.shape[-1], state.lam.shape[-1], state.last.V.shape[:2]
-        dense = Rows.of_dense(dense_size(pieces, s, n, m)) if output.dense else None
-        events = Rows.of_events(n, m) if output.events else None
+        dense = Rows.of_dense(dense_size(pieces, s, n, m)) if dense else None
+        events = Rows.of_events(n, m) if events else None
         return cls(state, Rows.of_records(n, m), dense, events, recoveries)
 
     def kinds(self):

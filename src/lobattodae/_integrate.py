@@ -23,7 +23,7 @@ from ._controllers import ConstantStepSize, ControlOptions, PIController
 from ._dense import evaluate, unpack_dense
 from ._doubling import for_error_control
 from ._errors import LobattoDAEInputError
-from ._loop import Output, init_state, run, scan_run
+from ._loop import Output, Recording, init_state, run, scan_run
 from ._controllers import ATOL, RTOL
 from ._options import (
     STATIC_MAX_STEPS,
@@ -194,7 +194,8 @@ def _integrate_adaptive(problem, method, controller, max_steps, differentiable, 
                              rows)
         return out._replace(status=_t_eval_status(out.status, t0, t1, t_eval).astype(jnp.int32))
     length = max_steps if t_eval is None else t_eval.shape[0]
-    state, chunk = run(problem, method, controller, output, state, args, length, 1, t_eval, max_attempts=max_steps)
+    state, chunk = run(problem, method, controller, output, state, args, length, Recording(t_eval=t_eval),
+                       max_attempts=max_steps)
     rec = unpack_rows(*chunk.rows, q0.shape[-1], lam0.shape[-1])
     reached = controller.done(state.controller) | (t_eval is not None and chunk.n_rows == length)  # every row written
     status = jnp.where((state.result == Result.SUCCESSFUL) & ~reached, Result.MAX_STEPS, state.result)

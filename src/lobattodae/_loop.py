@@ -11,9 +11,10 @@ One ``lax.while_loop`` whose body always reads in that order:
    ``every``-th one), the rows of ``t_eval`` it passed (from its dense output), the zeros of
    the event functions in it, its dense-output data.
 
-Everything that changes from run to run (initial values, ``t_span``, tolerances, ``t_eval``
-values, ``args``) is traced, so a loop is compiled once per (problem, method, controller,
-output, shapes, buffer length). :func:`~lobattodae.integrate` and
+Everything that changes from run to run (initial values, ``t_span``, tolerances, ``args``,
+and what is recorded: the :class:`Recording` of ``t_eval`` times, ``save_every`` and the dense
+output) is traced, so a loop is compiled once per (problem, method, controller, what it can
+record (:class:`Output`: the events above all), shapes, buffer length). :func:`~lobattodae.integrate` and
 :func:`~lobattodae.integrate_adaptive` are the pure entry points on top of it (jit/vmap-able,
 :mod:`lobattodae._integrate`); :func:`~lobattodae.solve` runs it in chunks
 (:mod:`lobattodae._chunks`). The layout of the recorded rows is :mod:`lobattodae._rows`'.
@@ -36,7 +37,7 @@ from ._results import Result
 from ._rows import Record, event_buffers, event_row, pack_row, row_buffers
 from ._stepper import LobattoIIIAIIIB, StepperState
 
-__all__ = ["Attempt", "Chunk", "Output", "State", "Steps", "attempt", "init_state", "run", "scan_run"]
+__all__ = ["Attempt", "Chunk", "Output", "Recording", "State", "Steps", "attempt", "init_state", "run", "scan_run"]
 
 #: An event's zero that the loop steps onto (a terminal one, or any under error control) is
 #: refined (the step taken again onto ``t - v/v'``) until the Newton update in time is below this
@@ -48,20 +49,41 @@ MAX_EVENT_REFINEMENTS = 4
 
 @dataclass(frozen=True)
 class Output:
-    """What the loop records (static: it shapes the buffers).
+    """What the compiled loop can record (static: it is part of the program).
 
-    ``t_eval``: rows at given times (the times themselves are traced, see :func:`run`)
-    instead of step points, taken from the dense output or, with ``step_to_t_eval``, at step
-    points that the steps are shortened to land on (:func:`clip_to_outputs`); ``dense``: each accepted step's dense-output data; ``events``:
-    the event functions whose zeros are recorded.
+    ``t_eval``: rows at given times instead of step points, taken from the dense output or,
+    with ``step_to_t_eval``, at step points that the steps are shortened to land on
+    (:func:`clip_to_outputs`); ``dense``: each accepted step's dense-output data; ``events``:
+    the event functions whose zeros are recorded. Which of the rows, the stepping onto the
+    times and the dense data a run uses is chosen by its :class:`Recording` (traced): one
+    program serves them all, so :func:`~lobattodae.solve` compiles the loop that can do
+    everything but the events and the projection, and a new output option compiles nothing.
     """
 
     t_eval: bool = False
     dense: bool = False
     events: tuple[Event, ...] = ()
-    step_to_t_eval: bool = False  # error-controlled steps end on the t_eval times (T_EVAL_ROWS)
+    step_to_t_eval: bool = False  # error-controlled steps may end on the t_eval times (T_EVAL_ROWS)
     project_t_eval: bool = False  # interpolated t_eval rows are moved onto the constraints (T_EVAL_ROWS)
     land_on_events: bool = False  # error control: every zero becomes a step point (see _events)
+
+
+class Recording(NamedTuple):
+    """What one run of the loop records, among what its :class:`Output` can (traced: a new
+    choice runs the same compiled program).
+
+    ``every``: keep every k-th step point (and the last); ``t_eval``: output times in the
+    direction of integration, NaN-padded, the first of them the ``offset``-th of the run (a
+    window: the rows a chunk can write are at most its length, so a window of that length
+    serves any number of times); ``at_t_eval``, ``step_to_t_eval``, ``dense``: which of the
+    output's capabilities are on (each only where the :class:`Output` has it)."""
+
+    every: Any = 1
+    t_eval: Any = None
+    offset: Any = 0
+    at_t_eval: Any = True
+    step_to_t_eval: Any = True
+    dense: Any = True
 
 
 class State(NamedTuple):
@@ -174,12 +196,12 @@ def clip_to_outputs(t, h, t_eval):
 
 
 def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: State, args,
-            t_eval=None) -> tuple[State, Attempt]:
+            t_eval=None, step_to_t_eval=True) -> tuple[State, Attempt]:
     """Steps 1-3 of the loop body: step, controller (and terminal events), result.
 
     Returns the state after the attempt (the step point moves only when the step is kept)
-    and what the recording step needs. With ``output.step_to_t_eval`` the proposed step ends
-    on the next time of ``t_eval`` it would pass.
+    and what the recording step needs. With ``output.step_to_t_eval`` and ``step_to_t_eval``
+    (traced) the proposed step ends on the next time of ``t_eval`` it would pass.
     """
     dtype = st.q.dtype
     events = output.events
@@ -188,7 +210,7 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
     # 1. step
     t, h = controller.proposal(st.controller)
     if output.step_to_t_eval:
-        h = clip_to_outputs(t, h, t_eval)
+        h = jnp.where(step_to_t_eval, clip_to_outputs(t, h, t_eval), h)
     direction = jnp.sign(h)
     q1, p1, lam1, info, stepper = method.step(problem, t, st.q, st.p, st.lam, h, args, st.stepper)
     ok = info.result == Result.SUCCESSFUL
@@ -368,17 +390,14 @@ def _step_record(a: Attempt) -> Record:
 
 
 def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: State, args, length: int,
-        every=1, t_eval=None, max_attempts: int | None = None, capacity: int | None = None):
+        recording: Recording = Recording(), max_attempts: int | None = None):
     """Advance ``state`` by at most ``max_attempts`` step attempts (default ``length``); return
-    ``(state, Chunk)``.
+    ``(state, Chunk)``, recording what ``recording`` asks for.
 
     The loop also stops when the controller is done, a step fails, or the buffers are full
-    (``length`` rows, or ``capacity`` step-point rows: see :func:`row_capacity`; with
-    ``output.t_eval`` a step can pass several rows of ``t_eval``, the rest are written by the
-    next call, which starts by writing the rows its state has passed).
-    ``every``: keep every k-th step point (and the last); ``t_eval``: (L,) output times in the
-    direction of integration, NaN-padded (with ``output.t_eval``). A failed step ends the loop
-    with ``state.result`` set and ``state`` left at the last step point.
+    (``length`` rows; with t_eval rows a step can pass several times, the rest are written by
+    the next call, which starts by writing the rows its state has passed). A failed step ends
+    the loop with ``state.result`` set and ``state`` left at the last step point.
     """
     dtype = state.q.dtype
     n, m = state.q.shape[-1], state.lam.shape[-1]
@@ -388,15 +407,21 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
     n_sub = method.pieces * (method.stages - 1)
     ev_capacity = max(length, n_sub * n_ev + 1)
     direction = jnp.sign(controller.proposal(state.controller)[1])
-    t_eval = jnp.full((1,), jnp.nan, dtype) if t_eval is None else jnp.asarray(t_eval, dtype)
-    every = jnp.asarray(every, jnp.int32)
+    rec = recording
+    t_eval = jnp.full((1,), jnp.nan, dtype) if rec.t_eval is None else jnp.asarray(rec.t_eval, dtype)
+    every, offset = jnp.asarray(rec.every, jnp.int32), jnp.asarray(rec.offset, jnp.int32)
+    # the capabilities of the program that this run uses (Python False: not compiled in)
+    at_t_eval = output.t_eval and rec.at_t_eval
+    step_to_t_eval = output.step_to_t_eval and rec.step_to_t_eval
+    dense_on = output.dense and rec.dense
     max_attempts = length if max_attempts is None else max_attempts
-    capacity = length if capacity is None or output.t_eval else min(capacity, length)
 
     def pending(st, n_rows):
-        k = jnp.minimum(st.k_eval, t_eval.shape[0] - 1)
+        """A t_eval row the run has passed and not yet written (the window's entry k - offset)."""
+        k = st.k_eval - offset
         t_now = controller.time(st.controller)
-        return output.t_eval & (st.k_eval < t_eval.shape[0]) & (direction * (t_eval[k] - t_now) <= 0) & (n_rows < length)
+        te = t_eval[jnp.clip(k, 0, t_eval.shape[0] - 1)]
+        return at_t_eval & (k < t_eval.shape[0]) & (direction * (te - t_now) <= 0) & (n_rows < length)
 
     def flush(st, rows, n_rows, step: DenseStep, info=None):
         """Write the t_eval rows up to the current step point from ``step``'s dense output."""
@@ -406,7 +431,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
 
         def body(c):
             k, rows, i = c
-            te = t_eval[k]
+            te = t_eval[k - offset]
             at_end = te == t_now
             q, p, lam = evaluate(pair, step, te)
             if output.project_t_eval:
@@ -427,27 +452,26 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
         return (
             (st.result == Result.SUCCESSFUL) & ~controller.done(st.controller) & (attempts < max_attempts)
-            & (n_rows < capacity) & (n_events + n_sub * n_ev + 1 <= ev_capacity) & ~pending(st, n_rows)
+            & (n_rows < length) & (n_events + n_sub * n_ev + 1 <= ev_capacity) & ~pending(st, n_rows)
         )
 
     def body(carry):
         st, buf, attempts = carry
         rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
         # 1.-3. step, controller, result
-        new, a = attempt(problem, method, controller, output, st, args, t_eval)
+        new, a = attempt(problem, method, controller, output, st, args, t_eval, step_to_t_eval)
         # 4. record
         if output.t_eval:
             new, rows, n_rows = flush(new, rows, n_rows, new.last, a.info)
-        else:
-            save = a.kept & ((new.n_accepted % every == 0) | a.finished)
-            floats, ints = pack_row(_step_record(a))
-            at = jnp.where(save, n_rows, capacity)
-            rows = (rows[0].at[at].set(floats, mode="drop"), rows[1].at[at].set(ints, mode="drop"))
-            n_rows = n_rows + save.astype(jnp.int32)
+        save = a.kept & jnp.logical_not(at_t_eval) & ((new.n_accepted % every == 0) | a.finished)
+        floats, ints = pack_row(_step_record(a))
+        at = jnp.where(save, n_rows, length)
+        rows = (rows[0].at[at].set(floats, mode="drop"), rows[1].at[at].set(ints, mode="drop"))
+        n_rows = n_rows + save.astype(jnp.int32)
         if output.dense:
-            at = jnp.where(a.kept, n_dense, length)
+            at = jnp.where(a.kept & dense_on, n_dense, length)
             dense = dense.at[at].set(pack_dense(a.info.dense), mode="drop")
-            n_dense = n_dense + a.kept.astype(jnp.int32)
+            n_dense = n_dense + (a.kept & dense_on).astype(jnp.int32)
         if n_ev:
             ev_rows, ev_idx, n_events = _write_events(ev_rows, ev_idx, n_events, a)
         return new, (rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events), attempts + 1
@@ -475,7 +499,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         ev_idx = ev_idx.at[at].set(jnp.where(a.final_event, a.final_index, a.landed_index), mode="drop")
         return ev_rows, ev_idx, n_events + at_point.astype(jnp.int32)
 
-    rows = row_buffers(capacity, n, m, dtype)
+    rows = row_buffers(length, n, m, dtype)
     zero = jnp.asarray(0, jnp.int32)
     state, rows, n_rows = flush(state, rows, zero, state.last)
     d_size = dense_size(method.pieces, method.stages, n, m)

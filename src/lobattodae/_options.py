@@ -35,8 +35,8 @@ from ._controllers import ATOL, MIN_RELATIVE_STEP, RTOL, ConstantStepSize, Contr
 from ._reversible import ReversibleStepSize
 from ._errors import LobattoDAEInputError
 from ._events import Event, as_events
-from ._chunks import CHUNK
-from ._loop import Output
+from ._chunks import CHUNK, recording_of
+from ._loop import Output, Recording
 from ._results import Result
 from ._stepper import LobattoIIIAIIIB
 from ._validate import check_tolerance_attainable
@@ -428,8 +428,18 @@ class Saving:
 
     @property
     def output(self) -> Output:
-        """The loop's static :class:`~lobattodae._loop.Output` (what shapes the buffers)."""
-        return t_eval_output(self.rows, self.dense, self.events, self.land_on_events)
+        """The loop's static :class:`~lobattodae._loop.Output`: what the compiled program can
+        record. The same whatever the rows (step points, ``save_every``, ``t_eval`` of any
+        length, stepped onto or interpolated) and the dense output, which :meth:`recording`
+        chooses as data: only the events (their functions) and ``t_eval_rows="project"`` (the
+        projection's code) compile another program."""
+        return Output(t_eval=True, dense=True, events=self.events, step_to_t_eval=True,
+                      project_t_eval=self.rows == "project", land_on_events=self.land_on_events)
+
+    def recording(self, length: int, k_eval: int = 0) -> Recording:
+        """What a chunk of ``length`` attempts records, the output times from row ``k_eval`` on."""
+        return recording_of(length, self.every, self.t_eval, k_eval, step_to_t_eval=self.rows == "step",
+                            dense=self.dense)
 
     def identity(self) -> list:
         """What a checkpoint or ensemble file of the run must match: the kept rows, the dense
@@ -518,7 +528,8 @@ class RunOptions:
         chunk = CHUNK if chunk_size is None else check_count("chunk_size", chunk_size, "step attempts per chunk")
         if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
             raise LobattoDAEInputError(f"max_recoveries must be a non-negative integer; got {max_recoveries!r}.")
-        if max_recoveries and (isinstance(steps, AdaptiveSteps) or saving.output != Output()):
+        if max_recoveries and (isinstance(steps, AdaptiveSteps) or saving.t_eval is not None or saving.dense
+                               or saving.events):
             raise LobattoDAEInputError(
                 "max_recoveries applies to constant steps without t_eval, events or dense_output; adaptive steps "
                 "recover from failed steps by themselves (drop n_steps/dt)."
@@ -553,14 +564,9 @@ class RunOptions:
         """The adaptive run used up its ``max_steps`` step attempts (checked between chunks)."""
         return self.adaptive and int(state.n_accepted) + int(state.n_rejected) >= self.max_steps
 
-    def padded_t_eval(self):
-        """t_eval padded with NaN to a power of two ≥ 16 (fewer distinct shapes to compile)."""
-        if self.t_eval is None:
-            return None
-        size = max(16, 1 << (len(self.t_eval) - 1).bit_length())
-        out = np.full(size, np.nan)
-        out[: len(self.t_eval)] = self.t_eval
-        return jnp.asarray(out)
+    def recording(self, state) -> Recording:
+        """What the next chunk records (:meth:`Saving.recording`), from ``state``'s next t_eval row on."""
+        return self.saving.recording(self.chunk, int(state.k_eval) if state is not None else 0)
 
     def progress_numbers(self, state):
         """``(done, total)`` for a progress report: the time reached (adaptive) or steps taken."""

@@ -216,7 +216,7 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
     }
     events = _event_lists(opt, run, q0.shape[-1], lam0.shape[-1])
     sol = None
-    if opt.output.dense:
+    if opt.saving.dense:
         (dense,) = run.dense.all()
         sol = DenseOutput(method.pair, dense, method.pieces, q0.shape[-1], lam0.shape[-1], opt.t0, problem, args)
     success = result.success and failed_step is None
@@ -270,11 +270,11 @@ def _zero_scale_hint(opt: RunOptions, state: State) -> str:
 
 def _event_lists(opt: RunOptions, run: Progress, n: int, m: int):
     """``(t_events, q_events, p_events, lam_events)``: one array per event function (or Nones)."""
-    if not opt.output.events:
+    if not opt.saving.events:
         return None, None, None, None
     rows, index = run.events.all()
     out = ([], [], [], [])
-    for j in range(len(opt.output.events)):
+    for j in range(len(opt.saving.events)):
         mine = rows[index == j]
         mine = mine[np.argsort(mine[:, 0] * np.sign(opt.t1 - opt.t0), kind="stable")]
         for lst, part in zip(out, split_event_rows(mine, n)):

@@ -80,9 +80,10 @@ def solve(
     ----------
     problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
         Reuse one problem object and pass parameters through ``args``: the compiled loop is
-        cached per problem object, method, options that shape the output and shapes, so new
-        numbers (initial values, ``t_span``, tolerances, ``n_steps``, ``args`` values) do not
-        recompile.
+        cached per problem object, method, step-size rule, event functions and shapes, so new
+        numbers (initial values, ``t_span``, tolerances, ``n_steps``, ``args`` values) and the
+        output options ``t_eval``, ``dense_output`` and ``save_every`` do not recompile
+        (``events`` and ``t_eval_rows="project"`` do).
     method : LobattoIIIAIIIB
     t_span : (float, float)
         ``(t0, t1)``; ``t1 < t0`` integrates backwards.
@@ -242,14 +243,13 @@ def _run(problem, method, opt: RunOptions, q0, p0, lam0, args, throw, project_in
 
     def initial():
         state, packing = init_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0, p0, lam0, args)
-        return Progress.start(state, opt.output), packing
+        return Progress.start(state, opt.saving.dense, bool(opt.saving.events)), packing
 
     meta = _run_identity(problem, method, args, opt, q0, p0, lam0) if opt.checkpoint else None
     run = packing = None  # a fresh run computes its initial state in its first chunk's compiled call
     if opt.checkpoint and opt.resume and _checkpoint.exists(opt.checkpoint):
         run, packing = initial()
         run = _resume(opt, meta, run.state)
-    t_eval = opt.padded_t_eval()
     failed = False
     start = time.perf_counter()
     last_saved = 0 if run is None else int(run.state.n_accepted)
@@ -259,11 +259,11 @@ def _run(problem, method, opt: RunOptions, q0, p0, lam0, args, throw, project_in
         while not interrupted() and (run is None or not (opt.finished(run.state) or opt.capped(run.state))):
             if run is None:
                 state, chunk, packing = start_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0,
-                                                   p0, lam0, args, opt.chunk, opt.every, t_eval)
-                run = Progress.start(state, opt.output)
+                                                   p0, lam0, args, opt.chunk, opt.recording(None))
+                run = Progress.start(state, opt.saving.dense, bool(opt.saving.events))
             else:
                 state, chunk = run_host(problem, method, controller, output, packing, run.state, args, opt.chunk,
-                                        opt.every, t_eval)
+                                        opt.recording(run.state))
             run = run.with_chunk(chunk)._replace(state=state)
             if int(state.result) not in (Result.SUCCESSFUL, Result.EVENT):
                 recovered = None
@@ -439,7 +439,7 @@ def _save(path: str, meta: dict, run: Progress) -> Progress:
 
 def _resume(opt: RunOptions, meta: dict, template: State) -> Progress:
     path = opt.checkpoint
-    empty = Progress.start(template, opt.output)
+    empty = Progress.start(template, opt.saving.dense, bool(opt.saving.events))
     names = [name for kind, _ in empty.kinds() for name in ROW_FIELDS[kind]]
     counters, state, rows, segments = _checkpoint.load(path, meta=meta, state_template=template, row_names=names)
     count = int(counters.get("rows", -1))
@@ -448,12 +448,12 @@ def _resume(opt: RunOptions, meta: dict, template: State) -> Progress:
             f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint (it holds {len(rows['t'])} rows, its "
             f"counter says {count}); delete it or restart without resume."
         )
-    if opt.output.events and len(rows["event_rows"]) != len(rows["event_index"]):
+    if opt.saving.events and len(rows["event_rows"]) != len(rows["event_index"]):
         raise _checkpoint.CheckpointError(
             f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint ({len(rows['event_rows'])} event rows, "
             f"{len(rows['event_index'])} event indices); delete it or restart without resume."
         )
-    run = Progress.start(state, opt.output, int(counters.get("recoveries", 0)))._replace(segments=segments)
+    run = Progress.start(state, opt.saving.dense, bool(opt.saving.events), int(counters.get("recoveries", 0)))._replace(segments=segments)
     loaded = {}
     for kind, empty_rows in run.kinds():
         fields = tuple(rows[name] for name in ROW_FIELDS[kind])
