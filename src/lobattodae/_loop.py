@@ -423,6 +423,12 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         te = t_eval[jnp.clip(k, 0, t_eval.shape[0] - 1)]
         return at_t_eval & (k < t_eval.shape[0]) & (direction * (te - t_now) <= 0) & (n_rows < length)
 
+    def next_time(st):
+        """The next output time (as a 1-vector; NaN: none in the window): the rows up to the
+        step point are written at the end of each attempt, so it is the first one not written."""
+        k = st.k_eval - offset
+        return jnp.where(k < t_eval.shape[0], t_eval[jnp.clip(k, 0, t_eval.shape[0] - 1)], jnp.nan)[None]
+
     def flush(st, rows, n_rows, step: DenseStep, info=None):
         """Write the t_eval rows up to the current step point from ``step``'s dense output."""
         if not output.t_eval:
@@ -459,7 +465,7 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
         st, buf, attempts = carry
         rows, n_rows, dense, n_dense, ev_rows, ev_idx, n_events = buf
         # 1.-3. step, controller, result
-        new, a = attempt(problem, method, controller, output, st, args, t_eval, step_to_t_eval)
+        new, a = attempt(problem, method, controller, output, st, args, next_time(st), step_to_t_eval)
         # 4. record
         if output.t_eval:
             new, rows, n_rows = flush(new, rows, n_rows, new.last, a.info)
