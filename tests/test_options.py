@@ -241,11 +241,16 @@ def test_saving_decides_how_t_eval_rows_are_made():
     assert Saving.of(span, PIController(), t_eval=[0.5]).rows == "step"
     assert Saving.of(span, L.ReversibleStepSize(), t_eval=[0.5]).rows == "interpolate"
     assert Saving.of(span, PIController(), t_eval=[0.5], t_eval_rows="project").output.project_t_eval
-    # one program for every choice of rows and the dense output: they are the run's recording
+    # two programs: step points (any save_every), and t_eval rows of any kind or the dense output
     plain = Saving.of(span, PIController()).output
-    for kw in ({"t_eval": [0.5]}, {"t_eval": np.linspace(0.1, 0.9, 3000)}, {"t_eval": [0.5], "t_eval_rows": "interpolate"},
-               {"dense_output": True}, {"save_every": 7}, {"save_every": "final"}):
+    assert plain == L._loop.Output()
+    for kw in ({"save_every": 7}, {"save_every": "final"}):
         assert Saving.of(span, PIController(), **kw).output == plain, kw
+    recording = Saving.of(span, PIController(), dense_output=True).output
+    assert recording.t_eval and recording.dense and recording.step_to_t_eval
+    for kw in ({"t_eval": [0.5]}, {"t_eval": np.linspace(0.1, 0.9, 3000)}, {"t_eval": [0.5], "t_eval_rows": "interpolate"},
+               {"t_eval": [0.5], "dense_output": True}):
+        assert Saving.of(span, PIController(), **kw).output == recording, kw
     rec = Saving.of(span, PIController(), t_eval=[0.25, 0.5], t_eval_rows="interpolate").recording(8, 1)
     assert rec.t_eval.shape == (8,) and rec.t_eval[0] == 0.5 and np.isnan(rec.t_eval[1:]).all() and rec.offset == 1
     assert bool(rec.at_t_eval) and not bool(rec.step_to_t_eval) and not bool(rec.dense)

@@ -74,25 +74,26 @@ def test_new_numbers_do_not_recompile(knife):
     L.solve(knife.problem, m, (1.0, 4.5), knife.q0, knife.p0, n_steps=33, args=knife.args)
     L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=33, args=knife.args._replace(g=2.5))
     assert _run_packed._cache_size() == size
-    # what is recorded is data, not program: every save_every, t_eval of any length (stepped
-    # onto or interpolated) and the dense output run the program of the plain run
+    # what is recorded is data: every save_every runs the program of the plain run, and t_eval
+    # of any length and the dense output share one more
     for every in (2, 7, 100, 5000, "final"):
         sol = L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=100, args=knife.args,
                       save_every=every)
         assert len(sol.t) == (2 if every in (5000, "final") else 100 // every + 1 + (100 % every > 0))
+    assert _run_packed._cache_size() == size
     a, b = knife.t_span
     for times in (np.linspace(a, b, 5), np.linspace(a, b, 3001)):
         sol = L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=100, args=knife.args, t_eval=times)
         np.testing.assert_array_equal(sol.t, times)
     sol = L.solve(knife.problem, m, knife.t_span, knife.q0, knife.p0, n_steps=100, args=knife.args, dense_output=True)
     assert sol.sol is not None
-    assert _run_packed._cache_size() == size
+    assert _run_packed._cache_size() == size + 1
 
 
 def test_output_options_share_the_error_controlled_program(sleigh):
-    """Under error control too, rows stepped onto or interpolated at any number of t_eval times,
-    the dense output and save_every change what is recorded, not the compiled loop; the rows
-    are those of a run that records only them (a t_eval longer than a chunk spans several)."""
+    """Under error control too, rows stepped onto or interpolated at any number of t_eval times
+    and the dense output run one program, the plain run and save_every another; the rows are
+    those of a run that records only them (a t_eval longer than a chunk spans several)."""
     ex = sleigh
     m = L.LobattoIIIAIIIB(stages=3)
     run = functools.partial(L.solve, ex.problem, m, (0.0, 3.0), ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
@@ -103,7 +104,7 @@ def test_output_options_share_the_error_controlled_program(sleigh):
     interpolated = run(t_eval=times, t_eval_rows="interpolate")
     dense = run(dense_output=True)
     final = run(save_every="final")
-    assert _run_packed._cache_size() == size
+    assert _run_packed._cache_size() == size + 1
     np.testing.assert_array_equal(stepped.t, times)
     np.testing.assert_array_equal(interpolated.t, times)
     np.testing.assert_array_equal(final.q[-1], plain.q[-1])

@@ -56,8 +56,8 @@ class Output:
     (:func:`clip_to_outputs`); ``dense``: each accepted step's dense-output data; ``events``:
     the event functions whose zeros are recorded. Which of the rows, the stepping onto the
     times and the dense data a run uses is chosen by its :class:`Recording` (traced): one
-    program serves them all, so :func:`~lobattodae.solve` compiles the loop that can do
-    everything but the events and the projection, and a new output option compiles nothing.
+    program serves them all (:attr:`lobattodae._options.Saving.output` says which programs
+    :func:`~lobattodae.solve` compiles).
     """
 
     t_eval: bool = False

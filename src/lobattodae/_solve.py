@@ -81,9 +81,10 @@ def solve(
     problem : PartitionedDAE, NonholonomicSystem or MechanicalSystem
         Reuse one problem object and pass parameters through ``args``: the compiled loop is
         cached per problem object, method, step-size rule, event functions and shapes, so new
-        numbers (initial values, ``t_span``, tolerances, ``n_steps``, ``args`` values) and the
-        output options ``t_eval``, ``dense_output`` and ``save_every`` do not recompile
-        (``events`` and ``t_eval_rows="project"`` do).
+        numbers (initial values, ``t_span``, tolerances, ``n_steps``, ``args`` values) do not
+        recompile, nor does ``save_every``; the first run with ``t_eval`` or ``dense_output``
+        compiles the loop that records them, once for every later ``t_eval`` and
+        ``dense_output`` (``events`` and ``t_eval_rows="project"`` compile loops of their own).
     method : LobattoIIIAIIIB
     t_span : (float, float)
         ``(t0, t1)``; ``t1 < t0`` integrates backwards.
