@@ -483,12 +483,18 @@ class PIController(_TimeAndEnd):
         # the step-size policy is a heuristic, not part of the model: derivatives follow the step
         # sequence the run chose (only the clipping to the end of the interval moves with t_span)
         h_new = report.h * jax.lax.stop_gradient(jnp.where(accept, grow, shrink))
+        # a step the loop shortened to end on an output time (t_eval rows stepped onto) is not the
+        # step size the error asked for: after it the run resumes its own proposal (unless the
+        # shorter step's error asks for less), and the PI memory keeps the last full step's error
+        shortened = jnp.abs(report.h) < jnp.abs(_end_clipped(st.t, st.h, st.t_end))
+        resume = accept & shortened & (grow >= 1.0)
+        h_new = jnp.where(resume, jnp.sign(h_new) * jnp.maximum(jnp.abs(h_new), jnp.abs(st.h)), h_new)
         h_new = jnp.sign(h_new) * jnp.minimum(jnp.abs(h_new), st.max_step)
         reaches_end = report.h == st.t_end - report.t  # bitwise: the proposal clipped it so
         t = jnp.where(accept, jnp.where(reaches_end, st.t_end, report.t + report.h), st.t)
         new = st._replace(
             t=t, h=h_new,
-            err_prev=jnp.where(accept, jnp.maximum(err, 1e-4), st.err_prev),
+            err_prev=jnp.where(accept & ~shortened, jnp.maximum(err, 1e-4), st.err_prev),
             h_rejected=jnp.where(accept, 0.0, report.h), err_rejected=jnp.where(accept, jnp.inf, err),
             n_rejected=st.n_rejected + (~accept).astype(jnp.int32),
         )

@@ -118,7 +118,8 @@ def solve(
         How the ``t_eval`` rows are made. ``"step"`` (the default under error control): the
         steps are shortened to end on the requested times, so each row is a step point, as
         accurate as the run and on the constraint to round-off; a time between two steps
-        the controller would take costs one extra step. ``"interpolate"`` (the default for
+        the controller would take costs at most one extra step (the step after it resumes the
+        size the controller had proposed). ``"interpolate"`` (the default for
         constant steps and ``ReversibleStepSize``, which keep their steps): rows from the
         dense output, no extra steps, accurate to order s between step points (at tight
         tolerances orders of magnitude less accurate than the step points, and ‖φ‖ at the
