@@ -205,7 +205,10 @@ def test_streaming_files_resume_and_load(knife, method, batch, batched_args, fin
     L.load_ensemble(files.paths[0])
 
 
-def test_adaptive_is_bit_for_bit_vmap(knife, method, batch):
+def test_adaptive_is_bit_for_bit_one_trajectory_at_a_time_on_a_cpu(knife, method, batch):
+    """On CPU devices the error-controlled trajectories run one after the other (``lax.map``;
+    ``_ensemble._in_turn``): each is, bit for bit, the single jitted ``integrate_adaptive``."""
+    assert jax.devices()[0].platform == "cpu"
     q0, p0, _, _ = batch
     # λ0 consistent with the shared args (g = 1; the batch's λ0 is for its per-trajectory g): ensemble
     # checks every trajectory's initial values as solve does
@@ -213,8 +216,9 @@ def test_adaptive_is_bit_for_bit_vmap(knife, method, batch):
                                                                 knife.args))(q0, p0))
     options = dict(rtol=1e-3, atol=1e-5, max_steps=512)
     result = L.ensemble(knife.problem, method, q0, p0, lam0, knife.args, t_span=(0.0, 1.0), **options)
-    ref = jax.vmap(lambda q, p, lam: L.integrate_adaptive(knife.problem, method, (0.0, 1.0), q, p, lam, knife.args,
-                                                          **options))(q0, p0, lam0)
+    single = jax.jit(lambda q, p, lam: L.integrate_adaptive(knife.problem, method, (0.0, 1.0), q, p, lam, knife.args,
+                                                            **options))
+    ref = jax.tree_util.tree_map(lambda *x: np.stack(x), *(single(*x) for x in zip(q0, p0, lam0)))
     last = np.asarray(ref.n_rows) - 1
     rows = np.arange(BATCH)
     for field in ("t", "q", "p", "lam"):
