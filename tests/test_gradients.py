@@ -218,24 +218,29 @@ def test_projection_and_consistent_lambda_are_differentiable():
 
 
 def test_auto_checkpoints_resolve_and_agree():
-    """``checkpoints="auto"`` (the default) splits long scans into √length segments and changes
-    neither the forward values nor, beyond round-off, the gradient."""
-    from lobattodae._integrate import AUTO_CHECKPOINTS_FROM, resolve_checkpoints
+    """``checkpoints="auto"`` (the default) keeps every step up to AUTO_CHECKPOINT_BYTES per
+    trajectory and splits longer scans into √length segments; segments change neither the
+    forward values nor, beyond round-off, the gradient."""
+    from lobattodae._doubling import StepDoubling
+    from lobattodae._integrate import AUTO_CHECKPOINT_BYTES, kept_bytes, resolve_checkpoints
 
-    assert resolve_checkpoints("auto", AUTO_CHECKPOINTS_FROM - 1) is None
-    assert resolve_checkpoints("auto", 2000) == 45
-    assert resolve_checkpoints(None, 2000) is None and resolve_checkpoints(7, 2000) == 7
-    ex = get_example("knife-edge")
     method = L.LobattoIIIAIIIB(stages=3)
-    n = AUTO_CHECKPOINTS_FROM + 21  # 11 segments of 11 (0 idle attempts); 121 steps
-
+    per = kept_bytes(method, 3, 1)
+    assert per == 3 * 8 * 4 * 7 and kept_bytes(StepDoubling(method), 3, 1) == 3 * per  # three solves per attempt
+    fits = AUTO_CHECKPOINT_BYTES // per
+    assert resolve_checkpoints("auto", fits, per) is None
+    assert resolve_checkpoints("auto", fits + 1, per) == round((fits + 1) ** 0.5)
+    assert resolve_checkpoints("auto", 2000, 4 * per) == 45
+    assert resolve_checkpoints(None, 2000, per) is None and resolve_checkpoints(7, 2000, per) == 7
+    ex = get_example("knife-edge")
+    n = 121  # 11 segments of 11 (0 idle attempts)
     def final(p0, checkpoints):
         return L.integrate(ex.problem, method, 0.0, 0.02, n, ex.q0, p0, ex.lam0, ex.args, checkpoints=checkpoints)
 
     p0 = jnp.asarray(ex.p0)
-    for a, b in zip(final(p0, "auto"), final(p0, None)):
+    for a, b in zip(final(p0, 11), final(p0, None)):
         assert jnp.array_equal(a, b)
     loss = lambda p, ck: jnp.sum(final(p, ck).q[-1] ** 2)  # noqa: E731
-    g_auto, g_all = jax.grad(loss)(p0, "auto"), jax.grad(loss)(p0, None)
+    g_auto, g_all = jax.grad(loss)(p0, 11), jax.grad(loss)(p0, None)
     np.testing.assert_allclose(g_auto, g_all, rtol=1e-12, atol=1e-14)
     assert float(jnp.max(jnp.abs(g_all))) > 1e-3  # a gradient that is not trivially zero

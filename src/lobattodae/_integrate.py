@@ -41,8 +41,8 @@ from ._results import Result
 from ._rows import unpack_rows
 from ._stepper import LobattoIIIAIIIB
 
-__all__ = ["AUTO_CHECKPOINTS_FROM", "AdaptiveResult", "IntegrateResult", "integrate", "integrate_adaptive",
-           "resolve_checkpoints"]
+__all__ = ["AUTO_CHECKPOINT_BYTES", "AdaptiveResult", "IntegrateResult", "integrate", "integrate_adaptive",
+           "kept_bytes", "resolve_checkpoints"]
 
 
 class IntegrateResult(NamedTuple):
@@ -78,23 +78,37 @@ def _integrate(problem, method, n_steps, checkpoints, t0, h, q0, p0, lam0, args)
 _integrate_compiled = _compile.jit(_integrate, static_argnums=(0, 1, 2, 3))
 
 
-#: ``checkpoints="auto"`` (the default of the differentiable entry points): a scan of at least
-#: AUTO_CHECKPOINTS_FROM attempts is split into ``round(√length)`` checkpointed segments. Reverse
-#: mode then keeps O(√length) states instead of O(length) and is also faster (measured: 1.3x on
-#: the falling disk, 1.3-1.4x on the sleigh, benchmarks/gradients.py), while the forward pass runs
-#: the same attempts bit for bit (within noise of the plain scan's time).
-AUTO_CHECKPOINTS_FROM = 100
+#: ``checkpoints="auto"`` (the default of the differentiable entry points): reverse mode keeps
+#: every attempt while that takes at most AUTO_CHECKPOINT_BYTES per trajectory (:func:`kept_bytes`),
+#: and splits longer scans into ``round(√length)`` checkpointed segments, O(√length) memory. Kept
+#: steps are the faster gradient and the faster compilation (2026-11-27, benchmarks/gradients.py,
+#: 2000 steps: 1.05-1.3x faster on the sleigh and the falling disk; knife edge, 200-1000 steps:
+#: 1.3x, and the first gradient 6.5 s against 8.6 s), so segments are for memory only; the bound
+#: is per trajectory because a ``vmap`` of B trajectories keeps B times as much. The forward pass
+#: runs the same attempts bit for bit either way.
+AUTO_CHECKPOINT_BYTES = 2 << 20
 
 
-def resolve_checkpoints(checkpoints, length: int) -> int | None:
+def kept_bytes(method, n: int, m: int) -> int:
+    """An upper estimate of what reverse mode keeps per attempt when it keeps every one: the state
+    and each Newton solve's stage solution, ``(s + 1)(2n + m)`` float64 values per solve (two
+    half steps and the whole step under step doubling), times 3 for what XLA keeps besides them
+    (measured 1.9-2.9 on the sleigh and the falling disk, ``memory_analysis``)."""
+    solves = 2 * getattr(method, "pieces", 1) - 1
+    return 3 * 8 * solves * (method.stages + 1) * (2 * n + m)
+
+
+def resolve_checkpoints(checkpoints, length: int, per_attempt: int = 0) -> int | None:
     """The number of checkpointed segments of a scan of ``length`` attempts: ``checkpoints`` as
-    given (a positive integer, or None for none), or for ``"auto"`` the rule above."""
+    given (a positive integer, or None for none), or for ``"auto"`` the rule above
+    (``per_attempt``: :func:`kept_bytes`)."""
     if checkpoints == "auto":
-        return int(round(math.sqrt(length))) if length >= AUTO_CHECKPOINTS_FROM else None
+        return int(round(math.sqrt(length))) if length * per_attempt > AUTO_CHECKPOINT_BYTES else None
     if checkpoints is not None and (isinstance(checkpoints, bool) or not isinstance(checkpoints, (int, np.integer))
                                     or checkpoints < 1):
         raise LobattoDAEInputError(
-            f"checkpoints must be 'auto' (the default: √length segments for long runs), None (keep every "
+            f"checkpoints must be 'auto' (the default: √length segments where keeping every step would take "
+            f"more than {AUTO_CHECKPOINT_BYTES >> 20} MiB), None (keep every "
             f"step for reverse mode) or a positive integer number of segments; got {checkpoints!r}."
         )
     return None if checkpoints is None else int(checkpoints)
@@ -117,10 +131,11 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
     step's state and stages with ``checkpoints=None``, O(n_steps × state) memory;
     ``checkpoints=k`` keeps k segment starts instead and recomputes each segment in the
     backward pass (O(k + n_steps/k) memory, Newton's iterations run again). The default
-    ``"auto"`` takes k = round(√n_steps) from 100 steps on (:data:`AUTO_CHECKPOINTS_FROM`):
-    O(√n_steps) memory, and on the measured problems a faster gradient than keeping every
-    step (see the [benchmarks page](../benchmarks/index.md)). The forward values do not
-    depend on ``checkpoints``.
+    ``"auto"`` keeps every step while that is at most 2 MiB per trajectory (:data:`AUTO_CHECKPOINT_BYTES`;
+    about 2,500 steps of a system with 2n + m = 7 at s = 4), the faster gradient and the faster
+    compilation, and takes k = round(√n_steps) beyond: O(√n_steps) memory (see the
+    [benchmarks page](../benchmarks/index.md)). The forward values do not depend on
+    ``checkpoints``.
 
     Parameters
     ----------
@@ -152,7 +167,7 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
         a positive integer.
     """
     check_count("n_steps", n_steps)
-    checkpoints = resolve_checkpoints(checkpoints, n_steps)
+    checkpoints = resolve_checkpoints(checkpoints, n_steps, kept_bytes(method, np.shape(q0)[-1], np.shape(lam0)[-1]))
     cast = functools.partial(jnp.asarray, dtype=jnp.float64)
     return _integrate_compiled(problem, method, n_steps, checkpoints, cast(t0), cast(h), cast(q0), cast(p0), cast(lam0),
                                args)
@@ -328,11 +343,11 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
         ``first_step``, ``max_step`` where they are concrete too.
     """
     _check_options(t_span, rtol, atol, first_step, max_step, controller, max_steps, t_eval)
-    checkpoints = resolve_checkpoints(checkpoints, max_steps)
     if not isinstance(differentiable, bool):
         raise LobattoDAEInputError(f"differentiable must be True or False; got {differentiable!r}.")
     rows = t_eval_rows_mode(t_eval_rows, controller, t_eval is not None)
     method = for_error_control(method, controller)
+    checkpoints = resolve_checkpoints(checkpoints, max_steps, kept_bytes(method, np.shape(q0)[-1], np.shape(lam0)[-1]))
     cast = functools.partial(jnp.asarray, dtype=jnp.float64)
     t0, t1 = (cast(x) for x in t_span)
     options = ControlOptions(1, rtol, atol, first_step, max_step)
