@@ -115,13 +115,12 @@ def _run_packed(problem, method, controller, output, packing, fresh, floats, int
     return packing.pack(state), chunk
 
 
-def recording_of(length: int, every=1, t_eval=None, k_eval=0, at_t_eval=None, step_to_t_eval=None,
-                 dense=False) -> Recording:
+def recording_of(length: int, every=1, t_eval=None, k_eval=0, step_to_t_eval=None, dense=False) -> Recording:
     """The :class:`~lobattodae._loop.Recording` of a chunk of ``length`` attempts as host
     arrays of fixed dtypes and shapes (one compiled signature for every choice): the window of
     ``length`` output times from the ``k_eval``-th on (NaN-padded; a chunk writes at most
-    ``length`` rows, so it never needs more), and the switches (``at_t_eval``: default, whether
-    ``t_eval`` is given; ``step_to_t_eval``: default, the same)."""
+    ``length`` rows, so it never needs more), and the switches: rows at the times whenever
+    ``t_eval`` is given, stepping onto them (default: the same) and dense data."""
     window = np.full(length, np.nan)
     if t_eval is not None:
         part = np.asarray(t_eval, np.float64)[k_eval: k_eval + length]
@@ -129,8 +128,7 @@ def recording_of(length: int, every=1, t_eval=None, k_eval=0, at_t_eval=None, st
     given = t_eval is not None
     return Recording(
         np.asarray(min(int(every), np.iinfo(np.int32).max), np.int32), window, np.asarray(k_eval, np.int32),
-        np.asarray(given if at_t_eval is None else at_t_eval), np.asarray(given if step_to_t_eval is None
-                                                                          else step_to_t_eval),
+        np.asarray(given), np.asarray(given if step_to_t_eval is None else step_to_t_eval),
         np.asarray(bool(dense)),
     )
 

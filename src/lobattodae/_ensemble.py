@@ -358,7 +358,8 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
     -----
     **Reproducibility.** On one device the results are bit for bit those of ``jax.vmap`` of
     the entry point (error control on a CPU: of the jitted entry point called for each
-    trajectory, which runs them one after the other, see ``docs/ensembles.md``). On two or more devices XLA compiles a partitioned (SPMD) program, whose
+    trajectory, which runs them one after the other, see ``docs/ensembles.md``). On two or
+    more devices XLA compiles a partitioned (SPMD) program, whose
     optimisation passes fuse and rewrite some floating-point expressions differently, so
     results agree with ``jax.vmap`` to round-off (tested to 1e-12; measurements on the
     [benchmarks page](../benchmarks/index.md)). Observed, not guaranteed: every device count ≥ 2 with

@@ -94,11 +94,11 @@ def kept_bytes(method, n: int, m: int) -> int:
     and each Newton solve's stage solution, ``(s + 1)(2n + m)`` float64 values per solve (two
     half steps and the whole step under step doubling), times 3 for what XLA keeps besides them
     (measured 1.9-2.9 on the sleigh and the falling disk, ``memory_analysis``)."""
-    solves = 2 * getattr(method, "pieces", 1) - 1
+    solves = 2 * method.pieces - 1
     return 3 * 8 * solves * (method.stages + 1) * (2 * n + m)
 
 
-def resolve_checkpoints(checkpoints, length: int, per_attempt: int = 0) -> int | None:
+def resolve_checkpoints(checkpoints, length: int, per_attempt: int) -> int | None:
     """The number of checkpointed segments of a scan of ``length`` attempts: ``checkpoints`` as
     given (a positive integer, or None for none), or for ``"auto"`` the rule above
     (``per_attempt``: :func:`kept_bytes`)."""
