@@ -121,6 +121,12 @@ class ConstantStepSize:
     """``n`` equal steps from ``t0`` to ``t1`` (negative h when ``t1 < t0``); every step whose
     stage equations are solved is accepted, a failed one ends the run."""
 
+    #: An attempt this controller does not accept ends the run (no retry starts from the state
+    #: before it): the loop then need not keep the method's state of the step before (see
+    #: :func:`~lobattodae._loop.attempt`). The error-controlled controllers retry, and do not
+    #: set it.
+    ends_on_rejection = True
+
     def init(self, problem, method, t0, t1, q0, p0, lam0, args, options: ControlOptions) -> ConstantState:
         return ConstantState(jnp.asarray(0, jnp.int32), jnp.asarray(options.n, jnp.int32), t0, t1, t1)
 
