@@ -41,10 +41,11 @@ best of >= 3 calls unless ``--quick``):
    values; then ``integrate`` called eagerly (not under jit) twice with the same shapes.
    Each call's wall time and the XLA compilations it triggered.
 5. ``size`` -- a chain of N_p nonholonomic particles in Cartesian coordinates
-   (``lib.problems.particle_chain``, n = 3 N_p, m = N_p), n = 6, 21, 60 (n must be a multiple of 3: 21
-   stands for the 20 of the issue), s = 3, h = 0.05: µs per step (whole ``solve``, best of
-   3, and the compiled loop alone from ``stats["compile_and_run_time"]`` when present),
-   Newton Jacobians and iterations per step, and the ratio n = 60 / n = 6.
+   (``lib.problems.particle_chain``, n = 3 N_p, m = N_p), n = 6, 21, 60, 120, 240 (n must be a
+   multiple of 3: 21 stands for the 20 of the issue), s = 3, h = 0.05, 512 steps (128 for
+   n > 60): µs per step (whole ``solve``, best of 3, and the compiled loop alone from
+   ``stats["compile_and_run_time"]`` when present), Newton Jacobians and iterations per step,
+   and each n's time per step over n = 6's (issue #26's target: n = 60 / n = 6 ≤ 20).
 6. ``threading`` -- the knife edge (s = 5, N = 5000, T = 1000) and the n = 60 chain timed in
    subprocesses with the default XLA CPU settings, with XLA's single-thread flags (each
    candidate flag is first tried in a throw-away process: an unknown XLA flag aborts the
@@ -121,7 +122,7 @@ def config(quick: bool) -> dict:
                "pids": PID_SETS, "lob_probes": 9, "tol_probes": 10, "probe_budget_s": 30.0},
         "first_call": {"processes": 3, "cases": [("falling-disk", 3, 1000, 50.0), ("knife-edge", 3, 1000, 100.0)]},
         "recompile": {"T": 100.0},
-        "size": {"n": [6, 21, 60], "N": 512, "h": 0.05},
+        "size": {"n": [6, 21, 60, 120, 240], "N": 512, "N_large": 128, "h": 0.05},
         "threading": {"knife": (5, 5000, 1000.0), "chain_n": 60, "chain_N": 256},
     }
 
@@ -527,12 +528,13 @@ def part_recompile(cfg: dict, repeats: int) -> dict:
 # ======================================================================= 5. size
 def part_size(cfg: dict, repeats: int) -> dict:
     sc = cfg["size"]
-    N, h = sc["N"], sc["h"]
+    h = sc["h"]
     method = L.LobattoIIIAIIIB(stages=3)
     rows = []
     for n in sc["n"]:
         if n % 3:
             raise ValueError(f"n = {n} is not a multiple of 3")
+        N = sc["N"] if n <= 60 else sc.get("N_large", sc["N"])  # n = 240: 25 ms per step
         problem, q0, p0, args = particle_chain(n // 3)
         tm = best_of(lambda: run_solve(problem, method, (0.0, N * h), q0, p0, N, args), repeats, first=True)
         sol = tm.result[0]
@@ -546,12 +548,15 @@ def part_size(cfg: dict, repeats: int) -> dict:
             + ("" if row["us_per_step_in_loop"] is None else f" ({row['us_per_step_in_loop']:.1f} in the compiled loop)")
             + f", Jacobians/step {row['jacobians_per_step'] if jac is not None else math.nan:.3f}, "
             f"Newton/step {row['newton_per_step'] or math.nan:.2f}, first call {tm.first:.2f} s")
-    out = {"s": 3, "h": h, "N": N, "rows": rows,
-           "note": "n must be a multiple of 3 (x, y, z per particle): n = 21 stands for the issue's n = 20"}
+    out = {"s": 3, "h": h, "N": sc["N"], "rows": rows,
+           "note": "n must be a multiple of 3 (x, y, z per particle): n = 21 stands for the issue's n = 20; "
+                   "each row's own N is in the row"}
     if len(rows) >= 2:
+        out["ratios_over_first"] = {f"n={r['n']} / n={rows[0]['n']}": r["us_per_step"] / rows[0]["us_per_step"]
+                                    for r in rows[1:]}
         out["ratio_last_over_first"] = rows[-1]["us_per_step"] / rows[0]["us_per_step"]
         out["ratio_label"] = f"n={rows[-1]['n']} / n={rows[0]['n']}"
-        log(f"  => time per step {out['ratio_label']}: {out['ratio_last_over_first']:.1f}x")
+        log("  => time per step " + ", ".join(f"{k}: {v:.1f}x" for k, v in out["ratios_over_first"].items()))
     return out
 
 
@@ -674,11 +679,13 @@ def summary_markdown(res: dict) -> str:
             ["call", "wall ms", "XLA compilations", "XLA compile s"], rows))
     p = res.get("size")
     if p and "error" not in p:
-        rows = [[r["n"], r["m"], r["us_per_step"], r["us_per_step_in_loop"], r["jacobians_per_step"],
-                 r["newton_per_step"]] for r in p["rows"]]
-        parts.append(f"**5. Size** (particle chain, s = 3, h = {p['h']}, N = {p['N']}; "
-                     f"{p.get('ratio_label', '')}: {_fx(p.get('ratio_last_over_first'), '.1f')})\n\n" + md_table(
-                         ["n", "m", "µs/step (solve)", "µs/step (loop)", "Jacobians/step", "Newton/step"], rows))
+        first = p["rows"][0]
+        rows = [[r["n"], r["m"], r.get("N", p["N"]), r["us_per_step"], r["us_per_step_in_loop"],
+                 r["us_per_step"] / first["us_per_step"], r["jacobians_per_step"], r["newton_per_step"]]
+                for r in p["rows"]]
+        parts.append(f"**5. Size** (particle chain, s = 3, h = {p['h']})\n\n" + md_table(
+            ["n", "m", "steps", "µs/step (solve)", "µs/step (loop)", f"/ n={first['n']}", "Jacobians/step",
+             "Newton/step"], rows))
     p = res.get("threading")
     if p and "error" not in p:
         rows = [[lab, "FAILED", None, None, None] if "error" in r else
