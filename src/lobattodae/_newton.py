@@ -72,9 +72,15 @@ class NewtonOptions:
 
 
 class JacobianCache(NamedTuple):
-    """The inverse of a stage Jacobian, kept between Newton solves (simplified Newton)."""
+    """The inverse of a stage Jacobian, kept between Newton solves (simplified Newton).
 
-    inverse: jax.Array
+    ``inverse`` holds the N × N inverse flattened row by row, shape (N²,). A matrix in the
+    loop state would be laid out column-major by XLA (as LAPACK's triangular solves return
+    it) while XLA:CPU's product wants it row-major: it copied the matrix at the entry of each
+    Newton loop, two N² copies per step. A vector has one layout; the one transposing copy
+    is made where the inverse is computed."""
+
+    inverse: jax.Array  # (N * N,), row-major
     valid: jax.Array  # bool scalar
 
 
@@ -102,7 +108,7 @@ class NewtonState(NamedTuple):
 
 
 def empty_jacobian_cache(size: int, dtype) -> JacobianCache:
-    return JacobianCache(inverse=jnp.zeros((size, size), dtype), valid=jnp.asarray(False))
+    return JacobianCache(inverse=jnp.zeros((size * size,), dtype), valid=jnp.asarray(False))
 
 
 def newton_init(x0, cache: JacobianCache) -> NewtonState:
@@ -161,9 +167,9 @@ def needs_refresh(theta, nrm, k, first, stale):
 
 # -- one iteration ----------------------------------------------------------------------------
 def fresh_jacobian(jac_fn, params, x) -> JacobianCache:
-    """Evaluate the Jacobian at x and invert it."""
+    """Evaluate the Jacobian at x and invert it (flattened, see :class:`JacobianCache`)."""
     _, jac = jac_fn(x, params)
-    return JacobianCache(inverse(jac), jnp.asarray(True))
+    return JacobianCache(inverse(jac).ravel(), jnp.asarray(True))
 
 
 def inverse(a):
@@ -177,9 +183,10 @@ def inverse(a):
 
 
 def _increment(fn, params, x, inverse):
-    """``x ← x - J⁻¹ fn(x)``: returns the new iterate, the increment and the residual."""
+    """``x ← x - J⁻¹ fn(x)`` (``inverse``: J⁻¹ flattened row by row): returns the new
+    iterate, the increment and the residual."""
     r = fn(x, params)
-    dx = inverse @ r
+    dx = inverse.reshape(r.shape[0], r.shape[0]) @ r
     return x - dx, dx, r
 
 

@@ -83,7 +83,9 @@ version fails.  Files of any other version, older or newer, are never migrated o
 :func:`load` raises :class:`CheckpointError` naming both versions and telling the user to
 delete the file or restart without resume.  (Version 1 is the ad-hoc ``leaf_{i}`` layout of
 lobattodae 0.1; it is recognised as such.  Version 3 is the single-file layout with
-``rows/<name>`` entries in the main file, rewritten whole at every save.)
+``rows/<name>`` entries in the main file, rewritten whole at every save.  Version 7 keeps the
+reused inverse Jacobian flattened, ``stepper.jacobian.inverse`` of shape (N²,) instead of
+(N, N).)
 
 Atomic writes
 -------------
@@ -174,12 +176,12 @@ __all__ = [
 ]
 
 FORMAT = "lobattodae-checkpoint"
-VERSION = 6
+VERSION = 7
 
 # schema_fingerprint(<the loop's State template>) for the current VERSION.  The loop records
 # it here once the State exists; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "2f840729bf4110bf"  # schema_fingerprint(lobattodae._loop.State) of VERSION
+STATE_FINGERPRINT: str | None = "8567d150c2048bbb"  # schema_fingerprint(lobattodae._loop.State) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"
