@@ -123,8 +123,7 @@ class ConstantStepSize:
 
     #: An attempt this controller does not accept ends the run (no retry starts from the state
     #: before it): the loop then need not keep the method's state of the step before (see
-    #: :func:`~lobattodae._loop.attempt`). The error-controlled controllers retry, and do not
-    #: set it.
+    #: :func:`~lobattodae._loop.attempt`). The controllers of variable steps retry (False).
     ends_on_rejection = True
 
     def init(self, problem, method, t0, t1, q0, p0, lam0, args, options: ControlOptions) -> ConstantState:
@@ -206,7 +205,10 @@ class AdaptiveState(NamedTuple):
 
 class _TimeAndEnd:
     """``done``/``time`` of controllers whose state holds the current time ``t`` and the end
-    ``t_end`` (an accepted step that reaches the end sets ``t = t_end`` exactly)."""
+    ``t_end`` (an accepted step that reaches the end sets ``t = t_end`` exactly): the variable
+    step sizes, which retry a rejected attempt from the state before it."""
+
+    ends_on_rejection = False  # see ConstantStepSize
 
     def done(self, st):
         return st.t == st.t_end

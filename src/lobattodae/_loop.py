@@ -245,7 +245,7 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
     # ends the run on it and no event can turn it into a re-step: then the method's state of the
     # step before is never read again, and selecting it (the reused inverse Jacobian, the
     # predictor's stages: a tenth of a small system's step) is skipped.
-    retried = not (getattr(controller, "ends_on_rejection", False) and not n_ev)
+    retried = not (controller.ends_on_rejection and not n_ev)
     new = State(
         q=keep(q1, st.q), p=keep(p1, st.p), lam=keep(lam1, st.lam),
         stepper=jax.tree_util.tree_map(keep, stepper, st.stepper) if retried else stepper,
@@ -421,18 +421,23 @@ def run(problem, method: LobattoIIIAIIIB, controller, output: Output, state: Sta
     dense_on = output.dense and rec.dense
     max_attempts = length if max_attempts is None else max_attempts
 
-    def pending(st, n_rows):
-        """A t_eval row the run has passed and not yet written (the window's entry k - offset)."""
+    def unwritten(st):
+        """``(in_window, te)``: the first t_eval row not yet written, the window's entry
+        ``k_eval - offset``, and whether the window holds it."""
         k = st.k_eval - offset
+        return k < t_eval.shape[0], t_eval[jnp.clip(k, 0, t_eval.shape[0] - 1)]
+
+    def pending(st, n_rows):
+        """A t_eval row the run has passed and not yet written."""
+        in_window, te = unwritten(st)
         t_now = controller.time(st.controller)
-        te = t_eval[jnp.clip(k, 0, t_eval.shape[0] - 1)]
-        return at_t_eval & (k < t_eval.shape[0]) & (direction * (te - t_now) <= 0) & (n_rows < length)
+        return at_t_eval & in_window & (direction * (te - t_now) <= 0) & (n_rows < length)
 
     def next_time(st):
         """The next output time (as a 1-vector; NaN: none in the window): the rows up to the
         step point are written at the end of each attempt, so it is the first one not written."""
-        k = st.k_eval - offset
-        return jnp.where(k < t_eval.shape[0], t_eval[jnp.clip(k, 0, t_eval.shape[0] - 1)], jnp.nan)[None]
+        in_window, te = unwritten(st)
+        return jnp.where(in_window, te, jnp.nan)[None]
 
     def flush(st, rows, n_rows, step: DenseStep, info=None):
         """Write the t_eval rows up to the current step point from ``step``'s dense output."""

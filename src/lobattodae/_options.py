@@ -394,13 +394,10 @@ def t_eval_rows_mode(t_eval_rows, controller, has_t_eval: bool) -> str | None:
     return t_eval_rows
 
 
-def t_eval_output(mode: str | None, dense: bool = False, events: tuple[Event, ...] = (),
-                  land_on_events: bool = False) -> Output:
-    """The loop's :class:`~lobattodae._loop.Output` for the ``t_eval`` rows made as ``mode``
-    (:func:`t_eval_rows_mode`), the dense output, the events and whether the steps land on the
-    events' zeros (under error control: :meth:`Saving.of` decides)."""
-    return Output(t_eval=mode is not None, dense=dense, events=events, step_to_t_eval=mode == "step",
-                  project_t_eval=mode == "project", land_on_events=land_on_events)
+def t_eval_output(mode: str | None) -> Output:
+    """The loop's :class:`~lobattodae._loop.Output` of :func:`~lobattodae.integrate_adaptive`:
+    ``t_eval`` rows made as ``mode`` (:func:`t_eval_rows_mode`; None: step points)."""
+    return Output(t_eval=mode is not None, step_to_t_eval=mode == "step", project_t_eval=mode == "project")
 
 
 @dataclass(frozen=True)

@@ -245,7 +245,7 @@ def _run(problem, method, opt: RunOptions, q0, p0, lam0, args, throw, project_in
 
     def initial():
         state, packing = init_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0, p0, lam0, args)
-        return Progress.start(state, opt.saving.dense, bool(opt.saving.events)), packing
+        return _progress(opt, state), packing
 
     meta = _run_identity(problem, method, args, opt, q0, p0, lam0) if opt.checkpoint else None
     run = packing = None  # a fresh run computes its initial state in its first chunk's compiled call
@@ -262,7 +262,7 @@ def _run(problem, method, opt: RunOptions, q0, p0, lam0, args, throw, project_in
             if run is None:
                 state, chunk, packing = start_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0,
                                                    p0, lam0, args, opt.chunk, opt.recording(None))
-                run = Progress.start(state, opt.saving.dense, bool(opt.saving.events))
+                run = _progress(opt, state)
             else:
                 state, chunk = run_host(problem, method, controller, output, packing, run.state, args, opt.chunk,
                                         opt.recording(run.state))
@@ -439,9 +439,14 @@ def _save(path: str, meta: dict, run: Progress) -> Progress:
     return run._replace(segments=segments, **marked)
 
 
+def _progress(opt: RunOptions, state: State, recoveries: int = 0) -> Progress:
+    """A run at ``state`` with no rows yet, of the kinds ``opt`` keeps."""
+    return Progress.start(state, opt.saving.dense, bool(opt.saving.events), recoveries)
+
+
 def _resume(opt: RunOptions, meta: dict, template: State) -> Progress:
     path = opt.checkpoint
-    empty = Progress.start(template, opt.saving.dense, bool(opt.saving.events))
+    empty = _progress(opt, template)
     names = [name for kind, _ in empty.kinds() for name in ROW_FIELDS[kind]]
     counters, state, rows, segments = _checkpoint.load(path, meta=meta, state_template=template, row_names=names)
     count = int(counters.get("rows", -1))
@@ -455,7 +460,7 @@ def _resume(opt: RunOptions, meta: dict, template: State) -> Progress:
             f"checkpoint '{path}' is corrupt or not a lobattodae checkpoint ({len(rows['event_rows'])} event rows, "
             f"{len(rows['event_index'])} event indices); delete it or restart without resume."
         )
-    run = Progress.start(state, opt.saving.dense, bool(opt.saving.events), int(counters.get("recoveries", 0)))._replace(segments=segments)
+    run = _progress(opt, state, int(counters.get("recoveries", 0)))._replace(segments=segments)
     loaded = {}
     for kind, empty_rows in run.kinds():
         fields = tuple(rows[name] for name in ROW_FIELDS[kind])
