@@ -64,14 +64,18 @@ def test_for_error_control_is_the_one_place_the_method_is_adapted():
 def test_stability_limited_steps_are_caught_on_the_long_sleigh():
     """The sleigh's turning mode is damped by the constraint; steps beyond the stability limit
     amplify it (docs/variable-steps.md §2). The embedded estimate let them through (s = 4, rtol
-    1e-8, T = 1000: error 4.8e-7, 48 x rtol); step doubling rejects them (measured 1.9e-12 in
-    92 steps, 11 rejected)."""
+    1e-8, T = 1000: error 4.8e-7, 48 x rtol); step doubling rejects them. Where each rejection
+    falls depends on round-off (the order of a sum changes the step sequence): over s = 4, 5
+    and rtol 1e-7..1e-9 the error was measured between 2e-13 and 1.1e-8 (here 6e-12 with 8
+    rejections, then 1.1e-8 with 9 after the tableau products were summed in another order),
+    always within the tolerance's reach, so the bound is 3 x rtol, 16 x below the embedded
+    estimate's failure."""
     ex = get_example("sleigh")
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), (0.0, 1000.0), ex.q0, ex.p0, args=ex.args, rtol=1e-8,
                   atol=1e-8, save_every="final")
     q, p, _ = ex.exact(1000.0)
     err = max(np.max(np.abs(sol.q[-1] - q) / (1 + np.abs(q))), np.max(np.abs(sol.p[-1] - p) / (1 + np.abs(p))))
-    assert sol.success and err < 1e-8, err
+    assert sol.success and err < 3e-8, err
     assert sol.stats["n_rejected"] > 0
 
 
