@@ -116,7 +116,8 @@ def tableau_product(coef: np.ndarray, x):
     grow with s. A ``dot`` would be a kernel of its own (on CPU the per-kernel overhead of a
     5×5 product is far larger than its arithmetic: +50 % per step, measured); a sum written
     out term by term fuses too, but its code grows like s², and with it XLA's compile time
-    (sleigh, s = 2 → 8: +67 % against +10 %; ``benchmarks/program_size.py``).
+    (the error-controlled attempt on the sleigh, s = 2 → 8: +67 % written out, +15 % as a
+    sum, at most +35 % at s = 6; ``benchmarks/program_size.py``, RESULTS.md 2026-11-27 22:45).
     """
     c = jnp.asarray(coef, x.dtype).reshape(coef.shape + (1,) * (x.ndim - 1))
     return jnp.sum(c * x[None], axis=1)
