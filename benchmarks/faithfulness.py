@@ -9,6 +9,7 @@ success with an error above 1000 × rtol.
 
     python benchmarks/faithfulness.py                       # the whole grid (slow)
     python benchmarks/faithfulness.py --problems andrews --stages 4 5 --rtols 1e-6 1e-8
+    python benchmarks/faithfulness.py --problems caraxis --merge   # into the stored results
 
 Writes ``benchmarks/results/faithfulness.json`` and ``faithfulness.png``.
 """
@@ -26,7 +27,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # the test
 
 import lobattodae as L  # noqa: E402
 from benchmarks.lib import cli  # noqa: E402
-from benchmarks.lib.output import log, pyplot, results_path, save_figure, write_json  # noqa: E402
+from benchmarks.lib.output import log, pyplot, read_json, results_path, save_figure, write_json  # noqa: E402
 from benchmarks.testset import PROBLEMS, error  # noqa: E402
 
 #: The contract of issue #25.
@@ -99,6 +100,19 @@ def grid(problems, stages, rtols) -> tuple[list[dict], dict]:
     return rows, slopes
 
 
+def merge(old: list[dict], new: list[dict]) -> tuple[list[dict], dict]:
+    """``old`` rows with ``new`` ones added (replacing those of the same problem, s and rtol), and
+    the slopes of every (problem, s) recomputed."""
+    key = lambda r: (r["problem"], r["s"], r["rtol"])  # noqa: E731
+    fresh = {key(r) for r in new}
+    rows = [r for r in old if key(r) not in fresh] + new
+    slopes = {}
+    for name, s in sorted({(r["problem"], r["s"]) for r in rows}):
+        mine = sorted((r for r in rows if (r["problem"], r["s"]) == (name, s)), key=lambda r: -r["rtol"])
+        slopes[f"{name} s={s}"] = slope(mine, PROBLEMS[name].ref_accuracy)
+    return rows, slopes
+
+
 def plot(rows, path):
     plt = pyplot()
     names = sorted({r["problem"] for r in rows})
@@ -130,8 +144,12 @@ def main(argv=None):
     ap.add_argument("--stages", nargs="+", type=int, default=list(STAGES))
     ap.add_argument("--rtols", nargs="+", type=float, default=list(RTOLS))
     ap.add_argument("--out", default=results_path("faithfulness"), help="the results' path without suffix")
+    ap.add_argument("--merge", action="store_true",
+                    help="merge into the existing results (rows of the same problem, s and rtol are replaced)")
     ns = cli.start(ap.parse_args(argv))
     rows, slopes = grid(ns.problems, ns.stages, ns.rtols)
+    if ns.merge and pathlib.Path(ns.out + ".json").exists():
+        rows, slopes = merge(read_json(ns.out + ".json")["rows"], rows)
     bad = verdict(rows)
     bad += [f"{k}: slope {v:.2f}" for k, v in slopes.items() if math.isfinite(v) and not SLOPE[0] <= v <= SLOPE[1]]
     write_json({"rows": rows, "slopes": slopes, "violations": bad}, ns.out + ".json")

@@ -23,6 +23,20 @@ def test_spd_solve_matches_numpy(n):
     da = da + da.T
     _, dx = jax.jvp(lambda aa: spd_solve(aa, jnp.asarray(rhs)), (jnp.asarray(a),), (jnp.asarray(da),))
     np.testing.assert_allclose(dx, -np.linalg.solve(a, da @ expected), rtol=1e-9, atol=1e-12)
+    # reverse mode (the gradient path transposes the derivative rule): ∂(cᵀx)/∂b = a⁻ᵀc, and
+    # along the symmetric da (LAPACK's Cholesky reads one triangle of a) −(a⁻ᵀc)ᵀ da x
+    c = rng.standard_normal(n)
+    ga, gb = jax.grad(lambda aa, bb: jnp.dot(jnp.asarray(c), spd_solve(aa, bb)), argnums=(0, 1))(
+        jnp.asarray(a), jnp.asarray(rhs))
+    adj = np.linalg.solve(a.T, c)
+    np.testing.assert_allclose(gb, adj, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(np.sum(ga * da), -adj @ da @ expected, rtol=1e-9, atol=1e-12)
+    # second derivative along da (the stage Jacobian of a field that itself holds a jvp):
+    # d²x[da, da] = 2 a⁻¹ da a⁻¹ da x
+    second = jax.jvp(lambda aa: jax.jvp(lambda a2: spd_solve(a2, jnp.asarray(rhs)), (aa,), (jnp.asarray(da),))[1],
+                     (jnp.asarray(a),), (jnp.asarray(da),))[1]
+    np.testing.assert_allclose(second, 2 * np.linalg.solve(a, da @ np.linalg.solve(a, da @ expected)),
+                               rtol=1e-8 * np.linalg.cond(a), atol=1e-11)
 
 
 @pytest.mark.parametrize("m", [1, 2, 3])

@@ -393,6 +393,55 @@ def andrews(entry) -> ReducedODE:
     return ReducedODE("andrews", n, rhs, rhs_jax, how, to_qp=to_qp, from_qp=from_qp, validation=val)
 
 
+def caraxis(entry) -> ReducedODE:
+    """The car axis in ``y = (q, u)`` (``p = u``), ``q' = u``, ``k u' = F(t, q) + G(t, q)ᵀλ`` with λ from
+    the acceleration-level constraint ``G u' = −c``, ``c = ψ_tt + 2 ψ_tq u + ψ_qq(u, u)``: with
+    ``u' = (F + Gᵀλ)/k`` that is the 2×2 system ``(G Gᵀ) λ = −k c − G F``, solved in closed form.
+    NumPy by hand (``math`` on floats) from the test set's ``caraxis.f``; JAX from the problem's
+    own functions (:func:`hidden_constraint`)."""
+    from testset import caraxis as C
+
+    setup = entry.build()
+    P = dict(C.PARAMS)
+    sin, cos, sqrt = math.sin, math.cos, math.sqrt
+    k, big_l, l0, r, w, kg = C.mass(P), P["L"], P["L0"], P["r"], P["w"], C.mass(P) * P["g"]
+    out = np.zeros(8)
+
+    def rhs(t, y):
+        xl, yl, xr, yr, uxl, uyl, uxr, uyr = y.tolist()
+        swt, cwt = sin(w * t), cos(w * t)
+        yb, ybd, ybdd = r * swt, r * w * cwt, -r * w * w * swt
+        xb = sqrt(big_l * big_l - yb * yb)
+        xbd = -yb * ybd / xb
+        xbdd = -(ybd * ybd + yb * ybdd + xbd * xbd) / xb
+        ll = sqrt(xl * xl + yl * yl)
+        lr = sqrt((xr - xb) ** 2 + (yr - yb) ** 2)
+        f1, f2 = (l0 - ll) * xl / ll, (l0 - ll) * yl / ll - kg
+        f3, f4 = (l0 - lr) * (xr - xb) / lr, (l0 - lr) * (yr - yb) / lr - kg
+        dx, dy, dux, duy = xl - xr, yl - yr, uxl - uxr, uyl - uyr
+        # G = [[xb, yb, 0, 0], [2dx, 2dy, −2dx, −2dy]]
+        c1 = xbdd * xl + ybdd * yl + 2.0 * (xbd * uxl + ybd * uyl)
+        c2 = 2.0 * (dux * dux + duy * duy)
+        gf1 = xb * f1 + yb * f2
+        gf2 = 2.0 * (dx * (f1 - f3) + dy * (f2 - f4))
+        a11, a12, a22 = xb * xb + yb * yb, 2.0 * (xb * dx + yb * dy), 8.0 * (dx * dx + dy * dy)
+        b1, b2 = -k * c1 - gf1, -k * c2 - gf2
+        det = a11 * a22 - a12 * a12
+        lam1, lam2 = (a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det
+        out[:4] = uxl, uyl, uxr, uyr
+        out[4] = (f1 + xb * lam1 + 2.0 * dx * lam2) / k
+        out[5] = (f2 + yb * lam1 + 2.0 * dy * lam2) / k
+        out[6] = (f3 - 2.0 * dx * lam2) / k
+        out[7] = (f4 - 2.0 * dy * lam2) / k
+        return out.copy()
+
+    n, m = _sizes(setup.problem, setup.args, setup.q0, setup.p0, setup.t_span[0])
+    jax_ode = hidden_constraint(setup.problem, setup.args, n, m)
+    how = ("y = (q, u): λ from (G Gᵀ)λ = −k c − G F (2×2, closed form), NumPy by hand (math on floats); "
+           "JAX from the problem's f, g, φ by jax.jacfwd")
+    return ReducedODE("caraxis", n, rhs, jax_ode.rhs_jax, how)
+
+
 # ------------------------------------------------------------------------------- any problem
 def hidden_constraint(problem, args, n: int, m: int) -> ReducedODE:
     """``(q, p)`` with λ from ``φ_t + φ_q f + φ_p g(λ) = 0`` (``jax.jacfwd`` of the problem's own
@@ -434,7 +483,9 @@ def testset_ode(entry) -> ReducedODE:
     if entry.name == "andrews":
         return andrews(entry)
     n, m = _sizes(setup.problem, setup.args, setup.q0, setup.p0, setup.t_span[0])
-    if entry.name in ("knife-edge", "sleigh"):
+    if entry.name == "caraxis":
+        ode = caraxis(entry)
+    elif entry.name in ("knife-edge", "sleigh"):
         ode = reduced_ode(entry.name, setup.args)
     elif entry.name in ("servo-sleigh", "servo-sleigh-rest"):
         from testset import servo_sleigh as problem_module
