@@ -136,7 +136,7 @@ def test_file_schema_is_explicit(tmp_path):
     with np.load(path, allow_pickle=False) as data:
         keys = set(data.files)
         assert str(data["__format__"]) == C.FORMAT == "lobattodae-checkpoint"
-        assert int(data["__version__"]) == C.VERSION == 7
+        assert int(data["__version__"]) == C.VERSION == 8
         assert json.loads(str(data["meta"])) == META
         assert json.loads(str(data["counters"])) == COUNTERS
         segments = json.loads(str(data["segments"]))
@@ -158,7 +158,7 @@ def test_file_schema_is_explicit(tmp_path):
     with np.load(os.path.join(C.rows_directory(path), name), allow_pickle=False) as seg:
         assert set(seg.files) == {"__format__", "__version__", "segment", "rows/q", "rows/result", "rows/ok"}
         assert str(seg["__format__"]) == C.ROWS_FORMAT == "lobattodae-checkpoint-rows"
-        assert int(seg["__version__"]) == 7
+        assert int(seg["__version__"]) == 8
         info = json.loads(str(seg["segment"]))
         assert info["run"] == segments["run"] and info["index"] == 0
         for key in rows:
@@ -228,7 +228,7 @@ def test_meta_with_nan_matches_itself(tmp_path):
     read(path, meta=meta)
 
 
-@pytest.mark.parametrize("version, age", [(5, "an older"), (6, "an older"), (8, "a newer")])
+@pytest.mark.parametrize("version, age", [(6, "an older"), (7, "an older"), (9, "a newer")])
 def test_version_mismatch(tmp_path, monkeypatch, version, age):
     path = tmp_path / "run.npz"
     with monkeypatch.context() as m:
@@ -238,7 +238,7 @@ def test_version_mismatch(tmp_path, monkeypatch, version, age):
         read(path)
     msg = str(info.value)
     assert msg.startswith(f"checkpoint '{path}' has checkpoint format version {version} (written by {age} "), msg
-    assert "this lobattodae reads and writes version 7" in msg
+    assert "this lobattodae reads and writes version 8" in msg
     assert "delete it or restart without resume" in msg
 
 
@@ -247,7 +247,7 @@ def test_legacy_leaf_layout_is_reported_as_version_1(tmp_path):
     legacy_meta = {"format": "lobattodae-checkpoint-1", "method": "x", "t0": 0.0}
     with open(path, "wb") as fh:
         np.savez(fh, meta=json.dumps(legacy_meta), done=3, recoveries=0, leaf_0=np.zeros(3), out_q=np.zeros((3, 2)))
-    with pytest.raises(C.CheckpointError, match="has checkpoint format version 1 .* reads and writes version 7"):
+    with pytest.raises(C.CheckpointError, match="has checkpoint format version 1 .* reads and writes version 8"):
         read(path)
 
 
@@ -260,7 +260,7 @@ def test_version_3_single_file_is_refused_with_the_version_message(tmp_path):
         read(path)
     assert str(info.value) == (
         f"checkpoint '{path}' has checkpoint format version 3 (written by an older lobattodae), but this "
-        "lobattodae reads and writes version 7; delete it or restart without resume."
+        "lobattodae reads and writes version 8; delete it or restart without resume."
     )
 
 
@@ -271,17 +271,22 @@ def test_checkpoint_error_is_an_input_error():
 
 def test_state_schema_is_versioned():
     """Changing the loop State (a field, a dtype, a rank) without bumping the checkpoint VERSION
-    and recording the new fingerprint fails here."""
-    from lobattodae._controllers import ConstantStepSize, ControlOptions
+    and recording the new fingerprint fails here: the states of constant steps and of error
+    control (the PI controller's memory) together."""
+    from lobattodae._controllers import ConstantStepSize, ControlOptions, PIController
     from lobattodae._chunks import init_host
     from lobattodae._io.fingerprint import schema_fingerprint
     from lobattodae._loop import Output
 
     ex = get_example("falling-disk-general")
     f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-    state, _ = init_host(ex.problem, L.LobattoIIIAIIIB(stages=4), ConstantStepSize(), Output(), f64(0.0), f64(1.0),
+    start = (f64(0.0), f64(1.0))
+    fixed, _ = init_host(ex.problem, L.LobattoIIIAIIIB(stages=4), ConstantStepSize(), Output(), *start,
                          ControlOptions(n=10), f64(ex.q0), f64(ex.p0), f64(ex.lam0), ex.args)
-    assert schema_fingerprint(state) == C.STATE_FINGERPRINT, (
+    control = ControlOptions(rtol=f64(1e-8), atol=f64(1e-8), first_step=f64(0.0), max_step=f64(np.inf))
+    adaptive, _ = init_host(ex.problem, L.LobattoIIIAIIIB(stages=4), PIController(), Output(), *start, control,
+                            f64(ex.q0), f64(ex.p0), f64(ex.lam0), ex.args)
+    assert schema_fingerprint((fixed, adaptive)) == C.STATE_FINGERPRINT, (
         "the loop State changed: bump lobattodae._io.checkpoint.VERSION and record the new STATE_FINGERPRINT"
     )
 

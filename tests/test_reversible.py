@@ -323,5 +323,6 @@ def test_stats_count_the_clamped_steps(contact):
     normal = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 20.0), ex.q0, ex.p0, args=ex.args,
                      controller=ReversibleStepSize(), first_step=FIRST_STEP)
     assert normal.stats["n_clamped"] == 0
+    assert normal.stats["n_roundoff_limited"] is None  # a PIController count
     assert L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 1.0), ex.q0, ex.p0, args=ex.args,
                    rtol=1e-6).stats["n_clamped"] is None

@@ -23,8 +23,10 @@ __all__ = ["enable_compilation_cache", "enable_default_cache", "default_cache_di
 CACHE_ENV = "LOBATTODAE_CACHE_DIR"
 #: Set to 1 to keep ``import lobattodae`` and the CLI from using the cache.
 NO_CACHE_ENV = "LOBATTODAE_NO_CACHE"
-#: The default cache stores compilations that took at least this long (JAX's own default).
+#: The default cache stores compilations that took at least this long (JAX's own default), unless
+#: the user set JAX's own variable for it (:data:`MIN_COMPILE_TIME_ENV`).
 DEFAULT_MIN_COMPILE_TIME = 1.0
+MIN_COMPILE_TIME_ENV = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
 #: The default cache's size bound in bytes (JAX evicts the least recently used entries).
 DEFAULT_MAX_SIZE = 1 << 30
 #: File name suffixes of a JAX cache entry and of its access time (``jax._src.lru_cache``).
@@ -127,7 +129,8 @@ def _have_filelock() -> bool:
 
 def enable_default_cache() -> Path | None:
     """What ``import lobattodae`` does: the cache on in the user cache directory (compilations of
-    DEFAULT_MIN_COMPILE_TIME seconds or more, DEFAULT_MAX_SIZE bytes at most), or in
+    DEFAULT_MIN_COMPILE_TIME seconds or more, or as long as ``$JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS``
+    says where the user set it; DEFAULT_MAX_SIZE bytes at most), or in
     ``$LOBATTODAE_CACHE_DIR`` for every compilation when that is set; nothing when
     ``LOBATTODAE_NO_CACHE`` is set or JAX's cache directory is already configured. Returns the
     directory, or None where the cache stays off (an unwritable default directory too)."""
@@ -135,7 +138,10 @@ def enable_default_cache() -> Path | None:
         return None
     if os.environ.get(CACHE_ENV):  # the user chose the directory (an unwritable one is an error), and
         return enable_compilation_cache(os.environ[CACHE_ENV])  # everything is kept, as the CLI does
+    min_time = DEFAULT_MIN_COMPILE_TIME
+    if os.environ.get(MIN_COMPILE_TIME_ENV):  # the user's choice, read by JAX at its import
+        min_time = float(jax.config.jax_persistent_cache_min_compile_time_secs)
     try:
-        return enable_compilation_cache(min_compile_time=DEFAULT_MIN_COMPILE_TIME, max_size=DEFAULT_MAX_SIZE)
+        return enable_compilation_cache(min_compile_time=min_time, max_size=DEFAULT_MAX_SIZE)
     except ValueError:
         return None

@@ -87,6 +87,7 @@ class StepReport(NamedTuple):
     q1: jax.Array
     p1: jax.Array
     lam1: jax.Array
+    retry: Any = 0.25  # a failed step's size factor for the next attempt (StepInfo.retry)
 
 
 def _rms(x):
@@ -196,6 +197,7 @@ class AdaptiveState(NamedTuple):
     order: jax.Array  # k, the power of h in the controlled error (PIController.error_exponent)
     span: jax.Array  # |t1 - t0| of the requested interval (the unit of the error per unit step)
     n_rejected: jax.Array  # int32
+    n_floored: jax.Array  # int32: accepted steps that passed only because of ROUNDOFF_FLOOR
 
     @property
     def rejected(self):
@@ -261,7 +263,10 @@ class PIController(_TimeAndEnd):
     furthest, are held as tightly as the others. (Asking for a longer interval than needed,
     e.g. to stop at a terminal event, makes every step more careful: the cost grows like
     ``(|t_1 - t_0| / h)^(1/(2s-1))``.) No step is asked for less than :data:`ROUNDOFF_FLOOR`
-    relative to ``1 + |y|``, the level of its own round-off. The next step is
+    relative to ``1 + |y|``, the level of its own round-off; steps that pass only by that floor
+    are counted (``n_floored``, ``Solution.stats["n_roundoff_limited"]``), and :func:`~lobattodae.solve`
+    warns when they may add up to more than rtol: the tolerance is then below what the steps
+    resolve over the interval. The next step is
 
         h_new = h · clip(safety · err^(-β₁/k) · err_prev^(β₂/k), fac_min, fac_max),
 
@@ -270,7 +275,8 @@ class PIController(_TimeAndEnd):
     where a second rejection in a row uses the power of h by which the error actually fell
     between the two attempts when it is below k (at least 1; ``fac_min`` when it did not fall:
     a fast mode beyond the stability limit); a step whose Newton solve fails is retried with a
-    quarter of the size. Factors in
+    quarter of the size (``StepInfo.retry``; half, where step doubling's half steps converged and
+    only the compared whole step did not). Factors in
     ``[1, hysteresis]`` keep h (and the reused Jacobians, see ``H_CHANGE_REFRESH``).
 
     **The cheap estimate** (``estimate="embedded"``, opt-in) costs no extra solve: the
@@ -421,6 +427,7 @@ class PIController(_TimeAndEnd):
             h_rejected=jnp.asarray(0.0, dtype), err_rejected=jnp.asarray(jnp.inf, dtype),
             rtol=rtol, atol=atol, max_step=options.max_step,
             order=jnp.asarray(float(k), dtype), n_rejected=jnp.asarray(0, jnp.int32),
+            n_floored=jnp.asarray(0, jnp.int32),
             span=jnp.abs(t1 - t0).astype(dtype),
         )
 
@@ -473,8 +480,13 @@ class PIController(_TimeAndEnd):
         k = st.order
         size = jnp.maximum(jnp.abs(report.y0), jnp.abs(report.y1))
         scale = st.atol + st.rtol * size
+        floored = jnp.asarray(False)
         if self.estimate == "doubling":  # per unit step, relative to the requested interval
-            scale = jnp.maximum(scale * jnp.abs(report.h) / st.span, ROUNDOFF_FLOOR * (1.0 + size))
+            asked = scale * jnp.abs(report.h) / st.span
+            scale = jnp.maximum(asked, ROUNDOFF_FLOOR * (1.0 + size))
+            # the error passes the floored test but not the one asked for: the tolerance asks this step
+            # for less than its round-off (counted, and reported by solve when it adds up)
+            floored = _rms(report.error / jnp.where(asked == 0, 1.0, asked)) > 1.0
         # a component with no error where its scale is 0 (atol=0 and the component 0, e.g. held at rest
         # by the constraint) passes; an error there cannot (the run then fails, STEP_SIZE_TOO_SMALL)
         err = _rms(jnp.where(report.error == 0, 0.0, report.error / jnp.where(scale == 0, 1.0, scale)))
@@ -487,7 +499,7 @@ class PIController(_TimeAndEnd):
         grow = jnp.clip(grow, self.fac_min, jnp.where(st.rejected, 1.0, self.fac_max))
         grow = jnp.where((grow >= 1.0) & (grow <= self.hysteresis), 1.0, grow)
         shrink = jnp.where(usable, jnp.clip(self.safety * safe_err ** (-1.0 / self._observed_order(st, report, err, k)),
-                                            self.fac_min, 0.9), 0.25)
+                                            self.fac_min, 0.9), report.retry)
         # the step-size policy is a heuristic, not part of the model: derivatives follow the step
         # sequence the run chose (only the clipping to the end of the interval moves with t_span)
         h_new = report.h * jax.lax.stop_gradient(jnp.where(accept, grow, shrink))
@@ -505,6 +517,7 @@ class PIController(_TimeAndEnd):
             err_prev=jnp.where(accept & ~shortened, jnp.maximum(err, 1e-4), st.err_prev),
             h_rejected=jnp.where(accept, 0.0, report.h), err_rejected=jnp.where(accept, jnp.inf, err),
             n_rejected=st.n_rejected + (~accept).astype(jnp.int32),
+            n_floored=st.n_floored + (accept & floored).astype(jnp.int32),
         )
         finished = accept & (t == st.t_end)
         small = ~finished & _too_small(h_new, t, st.t0, st.t_end)

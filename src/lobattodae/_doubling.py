@@ -138,6 +138,9 @@ class StepDoubling:
             resync=infos.resync[1],
             error=error,
             dense=joined(first, second),
+            # only the compared whole step failed: a step of half the size is a solve that has just
+            # converged (the first half), so the retry need not shrink further
+            retry=jnp.where(failed[0] & ~jnp.any(failed[1:]), 0.5, jnp.min(infos.retry)),
         )
         new_state = DoublingState(
             half, *(jax.tree_util.tree_map(lambda x: x[0], x) for x in (news.jacobian, news.h_jacobian, news.history))

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ._chunks import Progress
-from ._controllers import PIController
+from ._controllers import ROUNDOFF_FLOOR, PIController
 from ._reversible import ReversibleStepSize
 from ._dense import DenseOutput, stacked
 from ._errors import NewtonFailure
@@ -42,6 +42,8 @@ STATS = {
     "h": "the constant step size, or None for adaptive steps",
     "n_clamped": "ReversibleStepSize: steps whose control variable ρ was clamped (MAX_DENSITY_CHANGE), each one "
                  "unsymmetric, so 0 for a reversible run; None for other step-size rules",
+    "n_roundoff_limited": "PIController (step doubling): accepted steps whose error passed the test only because no "
+                          "step is asked for less than its round-off (ROUNDOFF_FLOOR); None for other step-size rules",
     "failed_step": "index of the failed step, or None",
     "recoveries": "failed steps retried as substeps (max_recoveries, constant steps)",
     "compile_and_run_time": "wall time of the integration loop, compilation included (s)",
@@ -194,6 +196,7 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         return np.concatenate([[x0], rows]) if with_initial else rows
 
     excursions = int(state.stepper.monitor.excursions)
+    floored = int(state.controller.n_floored) if isinstance(opt.controller, PIController) else None
     stats = {
         "newton_iterations": out.iterations,
         "residual_norm": out.residual_norm,
@@ -210,6 +213,7 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         "n_rejected": int(state.n_rejected),
         "h": opt.h,
         "n_clamped": int(state.controller.n_clamped) if isinstance(opt.controller, ReversibleStepSize) else None,
+        "n_roundoff_limited": floored,
         "failed_step": failed_step,
         "recoveries": run.recoveries,
         "compile_and_run_time": elapsed,
@@ -247,7 +251,16 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
             "smaller step."
         )
         message = f"{message} Warning: {note}"
-        warnings.warn(note, RuntimeWarning, stacklevel=3)
+        warnings.warn(note, RuntimeWarning, stacklevel=4)  # the caller of solve
+    if floored and floored * ROUNDOFF_FLOOR > float(opt.control.rtol):
+        note = (
+            f"{floored} of the {int(state.n_accepted)} steps asked for less than their round-off: rtol="
+            f"{float(opt.control.rtol):.3g} shared over this interval asks each of them for a local error below "
+            f"{ROUNDOFF_FLOOR:g}·(1 + |y|), which they were allowed instead, up to {floored * ROUNDOFF_FLOOR:.1e} in all; "
+            "the error may exceed rtol. Use more stages (a higher order takes fewer steps) or a looser rtol."
+        )
+        message = f"{message} Warning: {note}"
+        warnings.warn(note, RuntimeWarning, stacklevel=4)  # the caller of solve
     return Solution(
         t, column(q0, out.q), column(p0, out.p), column(lam0, out.lam),
         bool(success), result, message, stats, problem, method, args, *events, sol,

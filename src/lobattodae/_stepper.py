@@ -23,6 +23,10 @@ from ._dense import DenseStep, one_piece
 
 __all__ = ["LobattoIIIAIIIB", "StepInfo", "StepperState", "LAM_START_MODES"]
 
+#: A step whose Newton solve failed is attempted again with this factor times its size (the
+#: solve's contraction rate falls at least linearly with h).
+RETRY_FACTOR = 0.25
+
 #: The start-multiplier policies; see :class:`LobattoIIIAIIIB` (``lam_start``).
 LAM_START_MODES = ("auto", "previous", "consistent")
 #: A reused Jacobian is refreshed when the step size changed by more than this fraction.
@@ -119,6 +123,10 @@ class StepInfo(NamedTuple):
     dense : DenseStep
         The step's stage slopes and multipliers, from which its continuous extension is
         evaluated.
+    retry : jax.Array
+        When the step failed: the factor by which its size is to shrink for the next attempt
+        (:data:`RETRY_FACTOR`, or a larger one where the stepper knows a shorter solve to
+        converge, see :class:`~lobattodae._doubling.StepDoubling`).
     """
 
     result: jax.Array
@@ -129,6 +137,7 @@ class StepInfo(NamedTuple):
     resync: jax.Array  # bool: this step started from λ(t_0, q_0, p_0) instead of λ_0 ("auto")
     error: jax.Array  # (2n,) local error estimate of (q_1, p_1), see LobattoIIIAIIIB.step
     dense: DenseStep  # the step's continuous extension (lobattodae._dense)
+    retry: jax.Array  # a failed step's size factor for the next attempt (RETRY_FACTOR or larger)
 
 
 @dataclass(frozen=True)
@@ -420,9 +429,8 @@ class LobattoIIIAIIIB:
         )
         error = self._error_estimate(params, stages)
         dense = one_piece(t0, h, q0, p0, stages.V, stages.W, stages.Lam)
-        info = StepInfo(
-            ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians, drift, state.resync, error, dense
-        )
+        info = StepInfo(ninfo.result, ninfo.iterations, ninfo.residual_norm, ninfo.n_jacobians, drift, state.resync,
+                        error, dense, jnp.asarray(RETRY_FACTOR, error.dtype))
         return q1, p1, lam1, info, new_state
 
     def _error_estimate(self, params: se.StageParams, stages: se.Stages):

@@ -85,7 +85,7 @@ delete the file or restart without resume.  (Version 1 is the ad-hoc ``leaf_{i}`
 lobattodae 0.1; it is recognised as such.  Version 3 is the single-file layout with
 ``rows/<name>`` entries in the main file, rewritten whole at every save.  Version 7 keeps the
 reused inverse Jacobian flattened, ``stepper.jacobian.inverse`` of shape (N²,) instead of
-(N, N).)
+(N, N).  Version 8 adds ``controller.n_floored`` to the state of error-controlled runs.)
 
 Atomic writes
 -------------
@@ -176,12 +176,12 @@ __all__ = [
 ]
 
 FORMAT = "lobattodae-checkpoint"
-VERSION = 7
+VERSION = 8
 
-# schema_fingerprint(<the loop's State template>) for the current VERSION.  The loop records
-# it here once the State exists; a test asserts the two agree, so that changing the State
+# schema_fingerprint(<the loop's State templates>) for the current VERSION: the States of constant
+# steps and of error control together; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "8567d150c2048bbb"  # schema_fingerprint(lobattodae._loop.State) of VERSION
+STATE_FINGERPRINT: str | None = "7692070318bf4a4b"  # schema_fingerprint of the States (constant, PI) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"
