@@ -22,13 +22,13 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from benchmarks.testset import PROBLEMS, TestProblem, error  # noqa: E402
-from benchmarks.testset import andrews, caraxis, knife_edge, rolling_disc, servo_sleigh, sleigh, vertical_disk  # noqa: E402
+from benchmarks.testset import andrews, caraxis, fekete, knife_edge, rolling_disc, servo_sleigh, sleigh, vertical_disk  # noqa: E402
 
 NAMES = list(PROBLEMS)
 
 
 def test_registry():
-    assert NAMES == ["andrews", "caraxis", "rolling-disc", "vertical-disk", "sleigh", "knife-edge",
+    assert NAMES == ["andrews", "caraxis", "fekete", "rolling-disc", "vertical-disk", "sleigh", "knife-edge",
                      "servo-sleigh", "servo-sleigh-rest"]
     for name, entry in PROBLEMS.items():
         assert isinstance(entry, TestProblem) and entry.name == name
@@ -42,7 +42,7 @@ def test_registry():
         assert entry.p_ref is None or all(len(row) == n for row in entry.p_ref)
         assert max(entry.t_ref) <= first.t_span[1]
     assert PROBLEMS["servo-sleigh"].build().problem is PROBLEMS["servo-sleigh-rest"].build().problem
-    assert [e.name for e in PROBLEMS.values() if e.long] == ["sleigh", "knife-edge"]
+    assert [e.name for e in PROBLEMS.values() if e.long] == ["fekete", "sleigh", "knife-edge"]
     assert [e.name for e in PROBLEMS.values() if e.stiff] == ["servo-sleigh", "servo-sleigh-rest"]
 
 
@@ -146,6 +146,35 @@ def test_caraxis_published_reference_agrees_with_scipy():
     for y, y_ref in ((q, caraxis.Q_REF), (u, caraxis.U_REF)):
         y_ref = np.array(y_ref)
         assert np.max(np.abs(y - y_ref) / (1 + np.abs(y_ref))) < PROBLEMS["caraxis"].ref_accuracy
+
+
+# ----------------------------------------------------------------------------- Fekete
+def test_fekete_equations_are_the_test_sets():
+    """The repulsion against a loop over pairs; the library's consistent λ(0) is ``fekinit``'s
+    λ_i = −x_i·F_i/2; at the published end point the constraints hold, the forces are radial
+    (an equilibrium) and the consistent λ is the published −4.75."""
+    x = fekete.initial_positions()
+    loop = np.array([sum((x[i] - x[j]) / np.sum((x[i] - x[j]) ** 2) for j in range(20) if j != i) for i in range(20)])
+    np.testing.assert_allclose(fekete.forces(x), loop, rtol=1e-14, atol=1e-14)
+    s = fekete.build()
+    lam0 = L.consistent_lambda(s.problem, 0.0, jnp.asarray(s.q0), jnp.asarray(s.p0), jnp.zeros(20), None)
+    np.testing.assert_allclose(lam0, -np.sum(x * loop, axis=1) / 2, rtol=1e-13, atol=1e-13)
+    x_ref = np.array(fekete.X_REF).reshape(20, 3)
+    assert np.max(np.abs(np.sum(x_ref**2, axis=1) - 1)) < 1e-14
+    f_ref = fekete.forces(x_ref)
+    tangential = f_ref - np.sum(f_ref * x_ref, axis=1)[:, None] * x_ref
+    assert np.max(np.abs(tangential)) < 1e-10
+    lam = L.consistent_lambda(s.problem, 1000.0, jnp.asarray(x_ref.reshape(-1)), jnp.zeros(60), jnp.zeros(20), None)
+    np.testing.assert_allclose(lam, fekete.LAM_REF, rtol=1e-13)
+
+
+def test_fekete_published_reference_agrees_with_scipy():
+    """The published x(1000) agrees with scipy DOP853 on the index-1 ODE (final positions
+    normalised onto the spheres; measured 2.5e-12) to ref_accuracy."""
+    x, v = fekete.scipy_reference("DOP853", 1e-13)
+    x_ref = np.array(fekete.X_REF)
+    assert np.max(np.abs(x - x_ref) / (1 + np.abs(x_ref))) < PROBLEMS["fekete"].ref_accuracy
+    assert np.max(np.abs(v)) < 1e-11  # at rest
 
 
 # ----------------------------------------------------------------------------- rolling disc

@@ -485,6 +485,13 @@ def testset_ode(entry) -> ReducedODE:
     n, m = _sizes(setup.problem, setup.args, setup.q0, setup.p0, setup.t_span[0])
     if entry.name == "caraxis":
         ode = caraxis(entry)
+    elif entry.name == "fekete":
+        from testset import fekete as problem_module
+
+        jax_ode = hidden_constraint(setup.problem, setup.args, n, m)
+        ode = ReducedODE("fekete", n, problem_module.index1_rhs, jax_ode.rhs_jax,
+                         "y = (x, v), λ from the hidden constraint d/dt(x_i·v_i) = 0 in closed form: NumPy "
+                         "(vectorised over the 190 pairs) from the test set's fekete.f; JAX from the problem's f, g, φ")
     elif entry.name in ("knife-edge", "sleigh"):
         ode = reduced_ode(entry.name, setup.args)
     elif entry.name in ("servo-sleigh", "servo-sleigh-rest"):
