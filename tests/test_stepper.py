@@ -118,3 +118,28 @@ def test_auto_never_resets_on_a_reversible_problem():
     paper = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3, lam_start="previous"), (0.0, 20_000 * h), ex.q0, ex.p0, **kw)
     assert auto.stats["lam_resets"] == 0 and paper.stats["lam_excursions"] == 0
     np.testing.assert_array_equal(auto.q, paper.q)
+
+
+def test_a_rejected_attempt_hands_on_its_jacobian_and_nothing_else():
+    """after_rejection: a rejected attempt's state is reverted, except its Jacobian factorisation
+    (and the step size it was evaluated with); a kept attempt's state is taken whole. Also for
+    step doubling's two factorisations."""
+    from lobattodae._doubling import StepDoubling
+
+    ex = get_example("knife-edge")
+    q0, p0 = jnp.asarray(ex.q0), jnp.asarray(ex.p0)
+    lam0 = jnp.zeros(1)
+    for method in (L.LobattoIIIAIIIB(stages=3), StepDoubling(L.LobattoIIIAIIIB(stages=3, lam_start="consistent"))):
+        old = method.init(ex.problem, 0.0, q0, p0, lam0, ex.args, 0.1)
+        *_, new = method.step(ex.problem, 0.0, q0, p0, lam0, 0.1, ex.args, old)
+        rejected = method.after_rejection(jnp.asarray(False), new, old)
+        kept = method.after_rejection(jnp.asarray(True), new, old)
+        same = lambda a, b: all(np.array_equal(x, y) for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))  # noqa: E731
+        assert same(kept, new)
+        half_new, half_old, half_rej = (getattr(x, "half", x) for x in (new, old, rejected))
+        assert same(half_rej.jacobian, half_new.jacobian) and not same(half_old.jacobian, half_new.jacobian)
+        assert same(half_rej.h_jacobian, half_new.h_jacobian)
+        assert same(half_rej.history, half_old.history) and not same(half_new.history, half_old.history)
+        if isinstance(method, StepDoubling):
+            assert same(rejected.whole_jacobian, new.whole_jacobian)
+            assert same(rejected.whole_history, old.whole_history)

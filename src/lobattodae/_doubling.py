@@ -99,6 +99,13 @@ class StepDoubling:
         whole_h = jnp.asarray(0.0 if h is None else h, half.h_jacobian.dtype)
         return DoublingState(half, half.jacobian, whole_h, half.history)
 
+    def after_rejection(self, kept, new: DoublingState, old: DoublingState) -> DoublingState:
+        """As :meth:`LobattoIIIAIIIB.after_rejection`, for the half steps' state and the whole
+        step's own: both Jacobian factorisations are the attempt's."""
+        half = self.method.after_rejection(kept, new.half, old.half)
+        history = jax.tree_util.tree_map(lambda a, b: jnp.where(kept, a, b), new.whole_history, old.whole_history)
+        return DoublingState(half, new.whole_jacobian, new.whole_h_jacobian, history)
+
     def step(self, problem, t0, q0, p0, lam0, h, args: Any = None, state: DoublingState | None = None):
         """A step of size h as two half steps, with the local error estimate (Richardson) in
         ``info.error``; returns what :meth:`LobattoIIIAIIIB.step` returns."""

@@ -242,14 +242,14 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
     result = jnp.where(st.result != Result.SUCCESSFUL, st.result, result).astype(jnp.int32)
     constraint = jnp.max(jnp.abs(problem.phi(t1, q1, p1, args)), initial=0.0)
     keep = functools.partial(jnp.where, kept)
-    # An attempt that is not kept is retried from the state before it, unless the controller
-    # ends the run on it and no event can turn it into a re-step: then the method's state of the
-    # step before is never read again, and selecting it (the reused inverse Jacobian, the
-    # predictor's stages: a tenth of a small system's step) is skipped.
+    # An attempt that is not kept is retried from the state before it (the method's, less its
+    # Jacobian factorisation: method.after_rejection), unless the controller ends the run on it and
+    # no event can turn it into a re-step: then the method's state of the step before is never read
+    # again, and selecting it (the predictor's stages) is skipped.
     retried = not (controller.ends_on_rejection and not n_ev)
     new = State(
         q=keep(q1, st.q), p=keep(p1, st.p), lam=keep(lam1, st.lam),
-        stepper=jax.tree_util.tree_map(keep, stepper, st.stepper) if retried else stepper,
+        stepper=method.after_rejection(kept, stepper, st.stepper) if retried else stepper,
         controller=ctrl,
         # only t_eval rows and events read the last step's dense output: keep the loop lean otherwise
         last=jax.tree_util.tree_map(keep, info.dense, st.last) if output.t_eval or n_ev else st.last,

@@ -328,6 +328,32 @@ class LobattoIIIAIIIB:
             return state.lam_hidden
         return jnp.where(state.resync, state.lam_hidden, lam_n)
 
+    def after_rejection(self, kept, new: StepperState, old: StepperState) -> StepperState:
+        """The state the next attempt starts from: ``new`` where the step was ``kept``, else the
+        state before it, but with the attempt's Jacobian factorisation (and the step size it was
+        evaluated with) either way. A factorisation stays an approximation of the Jacobian near
+        the same point whatever became of the step (a failed one is marked invalid), and
+        selecting the old one back would copy its N² numbers at every attempt: at N = 480, half
+        a millisecond (``benchmarks/RESULTS.md``, 2026-11-28).
+
+        Part of the stepper protocol that the compiled loop calls; users do not call it.
+
+        Parameters
+        ----------
+        kept : jax.Array
+            Bool: the attempt was kept.
+        new, old : StepperState
+            The state after the attempt and the state before it.
+
+        Returns
+        -------
+        StepperState
+            The state the next attempt starts from.
+        """
+        rest = jax.tree_util.tree_map(functools.partial(jnp.where, kept), new._replace(jacobian=None, h_jacobian=None),
+                                      old._replace(jacobian=None, h_jacobian=None))
+        return rest._replace(jacobian=new.jacobian, h_jacobian=new.h_jacobian)
+
     def step(self, problem, t0, q0, p0, lam0, h, args: Any = None, state: StepperState | None = None):
         """Take one step of size ``h`` from consistent ``(t0, q0, p0, λ0)``.
 
