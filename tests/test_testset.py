@@ -46,6 +46,12 @@ def test_registry():
     assert [e.name for e in PROBLEMS.values() if e.stiff] == ["servo-sleigh", "servo-sleigh-rest"]
 
 
+def test_every_problem_has_a_convergence_study():
+    from benchmarks.testset.convergence import DEFAULT_STUDY
+
+    assert list(DEFAULT_STUDY) == NAMES
+
+
 def test_error_measure():
     entry = PROBLEMS["knife-edge"]
     t = np.array(entry.t_ref)

@@ -26,6 +26,8 @@ from benchmarks.testset import PROBLEMS, error  # noqa: E402
 #: name -> (stages, step counts) of the README tables
 DEFAULT_STUDY = {
     "andrews": ((4, 5), (50, 100, 200, 400, 800)),
+    "caraxis": ((2, 3, 4, 5, 6), (50, 100, 200, 400, 800, 1600)),
+    "fekete": ((3, 4, 5, 6), (2000, 4000, 8000, 16000)),
     "rolling-disc": ((4, 5), (100, 200, 400, 800, 1600)),
     "vertical-disk": ((3, 4), (200, 400, 800, 1600)),
     "sleigh": ((3, 4), (500, 1000, 2000, 4000, 8000)),
