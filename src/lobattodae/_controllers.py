@@ -38,6 +38,7 @@ import jax.numpy as jnp
 
 from ._problem import vector_field
 from ._results import Result
+from ._stepper import RETRY_FACTOR
 
 __all__ = [
     "ConstantStepSize",
@@ -87,7 +88,7 @@ class StepReport(NamedTuple):
     q1: jax.Array
     p1: jax.Array
     lam1: jax.Array
-    retry: Any = 0.25  # a failed step's size factor for the next attempt (StepInfo.retry)
+    retry: Any = RETRY_FACTOR  # a failed step's size factor for the next attempt (StepInfo.retry)
 
 
 def _rms(x):
@@ -480,16 +481,21 @@ class PIController(_TimeAndEnd):
         k = st.order
         size = jnp.maximum(jnp.abs(report.y0), jnp.abs(report.y1))
         scale = st.atol + st.rtol * size
+
+        def scaled(sc):
+            # a component with no error where its scale is 0 (atol=0 and the component 0, e.g. held at
+            # rest by the constraint) passes; an error there cannot (see below)
+            return _rms(jnp.where(report.error == 0, 0.0, report.error / jnp.where(sc == 0, 1.0, sc)))
+
         floored = jnp.asarray(False)
         if self.estimate == "doubling":  # per unit step, relative to the requested interval
             asked = scale * jnp.abs(report.h) / st.span
             scale = jnp.maximum(asked, ROUNDOFF_FLOOR * (1.0 + size))
             # the error passes the floored test but not the one asked for: the tolerance asks this step
             # for less than its round-off (counted, and reported by solve when it adds up)
-            floored = _rms(report.error / jnp.where(asked == 0, 1.0, asked)) > 1.0
-        # a component with no error where its scale is 0 (atol=0 and the component 0, e.g. held at rest
-        # by the constraint) passes; an error there cannot (the run then fails, STEP_SIZE_TOO_SMALL)
-        err = _rms(jnp.where(report.error == 0, 0.0, report.error / jnp.where(scale == 0, 1.0, scale)))
+            floored = scaled(asked) > 1.0
+        # an error where the scale is 0 fails the run (STEP_SIZE_TOO_SMALL)
+        err = scaled(scale)
         err = jnp.where(jnp.any((scale == 0) & (report.error != 0)), jnp.inf, err)
         usable = report.ok & jnp.isfinite(err)
         err = jnp.where(usable, err, jnp.inf)

@@ -27,6 +27,7 @@ once. The step's dense output is that of the two half steps (two pieces, see
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -103,7 +104,7 @@ class StepDoubling:
         """As :meth:`LobattoIIIAIIIB.after_rejection`, for the half steps' state and the whole
         step's own: both Jacobian factorisations are the attempt's."""
         half = self.method.after_rejection(kept, new.half, old.half)
-        history = jax.tree_util.tree_map(lambda a, b: jnp.where(kept, a, b), new.whole_history, old.whole_history)
+        history = jax.tree_util.tree_map(functools.partial(jnp.where, kept), new.whole_history, old.whole_history)
         return DoublingState(half, new.whole_jacobian, new.whole_h_jacobian, history)
 
     def step(self, problem, t0, q0, p0, lam0, h, args: Any = None, state: DoublingState | None = None):
