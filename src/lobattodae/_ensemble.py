@@ -43,6 +43,7 @@ import hashlib
 import json
 import os
 import stat
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -53,6 +54,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from . import _compile
+from ._controllers import ROUNDOFF_FLOOR
 from ._errors import LobattoDAEInputError
 from ._integrate import integrate, integrate_adaptive
 from ._io import fingerprint_arrays, fingerprint_callable
@@ -105,15 +107,15 @@ DEFAULT_BLOCK_PER_DEVICE = 8192
 MAX_BLOCK_OUTPUT_BYTES = 256 * 2**20
 #: The result fields of every run, and those only error-controlled runs have.
 _COMMON_FIELDS = ("q", "p", "lam", "status")
-_ADAPTIVE_FIELDS = ("t", "n_rows", "n_steps", "n_rejected")
+_ADAPTIVE_FIELDS = ("t", "n_rows", "n_steps", "n_rejected", "n_roundoff_limited")
 
 
 class EnsembleResult(NamedTuple):
     """What :func:`ensemble` returns without ``out_dir`` (and :func:`load_ensemble`): NumPy arrays,
     trajectory-major (axis 0 is the trajectory, then time for ``save="all"``).
 
-    Fields that a run does not have are ``None``: ``t``, ``n_rows``, ``n_steps`` and
-    ``n_rejected`` belong to error-controlled runs (constant steps are on the grid
+    Fields that a run does not have are ``None``: ``t``, ``n_rows``, ``n_steps``,
+    ``n_rejected`` and ``n_roundoff_limited`` belong to error-controlled runs (constant steps are on the grid
     ``t0 + k·h``); :func:`load_ensemble` with ``fields=`` leaves out the others.
 
     Attributes
@@ -136,6 +138,10 @@ class EnsembleResult(NamedTuple):
         Error-controlled runs: accepted steps.
     n_rejected : ndarray, shape (B,), int32, optional
         Error-controlled runs: rejected step attempts.
+    n_roundoff_limited : ndarray, shape (B,), int32, optional
+        Error-controlled runs: accepted steps that passed only by the round-off floor
+        (:class:`~lobattodae.AdaptiveResult`); :func:`ensemble` warns when, for some
+        trajectories, they may add up to more than rtol.
     """
 
     index: np.ndarray  # (B,) int64: the trajectory's position in the global batch
@@ -147,6 +153,7 @@ class EnsembleResult(NamedTuple):
     n_rows: np.ndarray | None = None  # adaptive: (B,) int32 valid rows of q, p, lam, t (NaN after them)
     n_steps: np.ndarray | None = None  # adaptive: (B,) int32 accepted steps
     n_rejected: np.ndarray | None = None  # adaptive: (B,) int32 rejected step attempts
+    n_roundoff_limited: np.ndarray | None = None  # adaptive: (B,) int32 steps passed only by the round-off floor
 
 
 class EnsembleFiles(NamedTuple):
@@ -354,6 +361,14 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
         ``if_exists``, existing files (:class:`EnsembleFileError` for files that are not
         regular files).
 
+    Warns
+    -----
+    RuntimeWarning
+        Error-controlled runs where, for some trajectories, the steps that passed only by the
+        round-off floor (``n_roundoff_limited``) may add up to more than rtol, as
+        :func:`~lobattodae.solve` warns for one run: the tolerance asks for less than the steps
+        resolve over the interval (with ``out_dir``: of the blocks computed by this call).
+
     Notes
     -----
     **Reproducibility.** On one device the results are bit for bit those of ``jax.vmap`` of
@@ -413,15 +428,19 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
     check_initial_values(problem, blocks, bounds, treedef, leaves, flags, paths, batch)
     if out_dir is None:
         parts = [part for _, part in blocks.run(((a, b), blocks.inputs(a, b), b - a) for a, b in bounds)]
-        return _assemble(parts, np.arange(start, stop, dtype=np.int64), mode.n_steps is not None, n, m,
-                         mode.rows, save)
+        out = _assemble(parts, np.arange(start, stop, dtype=np.int64), mode.n_steps is not None, n, m, mode.rows,
+                        save)
+        if out.n_roundoff_limited is not None:
+            _warn_roundoff(out.index[_over_roundoff(out.n_roundoff_limited, mode)], out.index.size, mode)
+        return out
     run_meta = {
         "format": FILE_FORMAT, "version": FILE_VERSION, "save": save, "batch": batch, "n": n, "m": m,
         "method": repr(method), "problem": _problem_token(problem), "args": _args_token(blocks.shared, paths, flags),
         **mode.settings,
     }
-    n_failed, n_skipped, paths = _write_blocks(blocks, bounds, os.fspath(out_dir), if_exists, run_meta, process,
-                                               n_processes)
+    n_failed, n_skipped, paths, over = _write_blocks(blocks, bounds, os.fspath(out_dir), if_exists, run_meta, process,
+                                                     n_processes, mode)
+    _warn_roundoff(over, stop - start, mode)
     if n_processes > 1:  # every process's files are complete once this returns anywhere
         from jax.experimental import multihost_utils
 
@@ -516,10 +535,11 @@ class _Blocks:
 
 
 def _write_blocks(blocks: _Blocks, bounds, out_dir: str, if_exists: str, run_meta: dict, process: int,
-                  n_processes: int) -> tuple[int, int, list[str]]:
+                  n_processes: int, mode: _Mode) -> tuple[int, int, list[str], np.ndarray]:
     """Stream the blocks to ``out_dir`` (one ``.npz`` each), skipping complete ones on resume.
 
-    Returns (failed trajectories, blocks skipped, the paths of all blocks)."""
+    Returns (failed trajectories, blocks skipped, the paths of all blocks, the trajectories of
+    the computed blocks whose round-off-limited steps may add up to more than rtol)."""
     os.makedirs(out_dir, exist_ok=True)
     existing = own_files(out_dir, process)
     if existing and if_exists == "error":
@@ -541,6 +561,7 @@ def _write_blocks(blocks: _Blocks, bounds, out_dir: str, if_exists: str, run_met
             os.unlink(path)
     run_digest = hashlib.sha256(json.dumps(run_meta, sort_keys=True).encode()).hexdigest()
     count = {"failed": 0, "skipped": 0}
+    over = []
 
     def todo():
         """The blocks to compute, read one at a time; complete ones are skipped on resume."""
@@ -561,8 +582,10 @@ def _write_blocks(blocks: _Blocks, bounds, out_dir: str, if_exists: str, run_met
         arrays = {"meta": np.asarray(json.dumps(meta)), "index": np.arange(a, b, dtype=np.int64)}
         arrays.update({name: value for name, value in result.items() if value is not None})
         write_block(paths[k], arrays)
+        if "n_roundoff_limited" in arrays:
+            over.append(a + _over_roundoff(arrays["n_roundoff_limited"], mode))
         count["failed"] += int(np.count_nonzero(result["status"] != 0))
-    return count["failed"], count["skipped"], paths
+    return count["failed"], count["skipped"], paths, np.concatenate(over, dtype=np.int64) if over else np.zeros(0, np.int64)
 
 
 def _problem_token(problem) -> str:
@@ -575,6 +598,26 @@ def _args_token(shared, paths, flags) -> dict:
     except TypeError:  # a non-numeric leaf: the run is identified without it
         digest = None
     return {"shared": digest, "batched": [p for p, f in zip(paths, flags) if f]}
+
+
+def _over_roundoff(n_roundoff_limited: np.ndarray, mode: _Mode) -> np.ndarray:
+    """Where (positions) the steps that passed only by the round-off floor may add up to more than rtol."""
+    return np.flatnonzero(np.asarray(n_roundoff_limited) * ROUNDOFF_FLOOR > float(mode.numbers[2]))
+
+
+def _warn_roundoff(over: np.ndarray, total: int, mode: _Mode) -> None:
+    """Warn, as :func:`~lobattodae.solve` does for one run, when some trajectories (``over``: their
+    indices in the batch) took steps that passed only by the round-off floor and may add up to
+    more than rtol."""
+    if over.size:
+        rtol = float(mode.numbers[2])  # (t0, t1, rtol, ...): only error-controlled runs count such steps
+        warnings.warn(
+            f"{over.size} of {total} trajectories (first: {int(np.min(over))}) took steps that asked for "
+            f"less than their round-off: rtol={rtol:.3g} shared over the interval asks each step for a local error "
+            f"below {ROUNDOFF_FLOOR:g}·(1 + |y|), which they were allowed instead (n_roundoff_limited); their error "
+            "may exceed rtol. Use more stages (a higher order takes fewer steps) or a looser rtol.",
+            RuntimeWarning, stacklevel=3,
+        )
 
 
 def _assemble(parts: list[dict], index: np.ndarray, fixed: bool, n: int, m: int, rows: int,
@@ -603,7 +646,8 @@ def load_ensemble(source, *, fields: Sequence[str] | None = None) -> EnsembleRes
         post-processing a batch that does not fit in memory).
     fields : sequence of str, optional
         Load only these of ``q``, ``p``, ``lam``, ``status``, ``t``, ``n_rows``, ``n_steps``,
-        ``n_rejected`` (the others are ``None``); default: all that the run saved.
+        ``n_rejected``, ``n_roundoff_limited`` (the others are ``None``); default: all that the
+        run saved.
 
     Returns
     -------

@@ -188,6 +188,13 @@ class AdaptiveResult(NamedTuple):
         Accepted steps and rejected attempts.
     status : jax.Array, int32
         The :class:`Result` code (``MAX_STEPS`` when ``max_steps`` ran out first).
+    n_roundoff_limited : jax.Array, int32
+        Accepted steps that passed the error test only because no step is asked for a local
+        error below its round-off, 1e-13 relative to ``1 + |y|`` (:class:`~lobattodae.PIController`;
+        0 for controllers without that floor). When ``n_roundoff_limited · 1e-13 > rtol`` the
+        tolerance asks for less than the steps resolve over the interval and the error may
+        exceed rtol: :func:`~lobattodae.solve` warns then, and here, where a run may be under
+        ``jit``, this count is how it says so.
     """
 
     t: jax.Array  # (rows,) step points (row 0: t0) or the t_eval times
@@ -198,6 +205,7 @@ class AdaptiveResult(NamedTuple):
     n_steps: jax.Array  # int32: accepted steps
     n_rejected: jax.Array  # int32
     status: jax.Array  # int32 Result code (MAX_STEPS when max_steps ran out first)
+    n_roundoff_limited: jax.Array  # int32: accepted steps that passed only by the round-off floor
 
 
 def _integrate_adaptive(problem, method, controller, max_steps, differentiable, checkpoints, rows, t0, t1, q0, p0,
@@ -218,9 +226,16 @@ def _integrate_adaptive(problem, method, controller, max_steps, differentiable, 
     if t_eval is None:
         return AdaptiveResult(
             _with_initial(t0, rec.t), _with_initial(q0, rec.q), _with_initial(p0, rec.p), _with_initial(lam0, rec.lam),
-            chunk.n_rows + 1, state.n_accepted, state.n_rejected, status,
+            chunk.n_rows + 1, state.n_accepted, state.n_rejected, status, _roundoff_limited(state),
         )
-    return AdaptiveResult(rec.t, rec.q, rec.p, rec.lam, chunk.n_rows, state.n_accepted, state.n_rejected, status)
+    return AdaptiveResult(rec.t, rec.q, rec.p, rec.lam, chunk.n_rows, state.n_accepted, state.n_rejected, status,
+                          _roundoff_limited(state))
+
+
+def _roundoff_limited(state):
+    """The controller's count of steps passed only by the round-off floor (0 without one)."""
+    count = getattr(state.controller, "n_floored", None)
+    return jnp.asarray(0 if count is None else count, jnp.int32)
 
 
 def _t_eval_status(status, t0, t1, t_eval):
@@ -256,7 +271,8 @@ def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t
                        state.result).astype(jnp.int32)
     if t_eval is None:
         rows = [_with_initial(x0, front(x)) for x0, x in ((t0, steps.t), (q0, steps.q), (p0, steps.p), (lam0, steps.lam))]
-        return AdaptiveResult(*rows, n_rows + 1, state.n_accepted, state.n_rejected, status)
+        return AdaptiveResult(*rows, n_rows + 1, state.n_accepted, state.n_rejected, status,
+                              _roundoff_limited(state))
     n, m = q0.shape[-1], lam0.shape[-1]
     dense = unpack_dense(front(steps.dense), method.pieces, method.stages, n, m)
     ends = front(steps.t)
@@ -271,7 +287,8 @@ def _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t
         q, p, lam = jax.vmap(lambda tt, *x: project_row(problem, tt, *x, args))(t_eval, q, p, lam)
     nan = functools.partial(jnp.where, inside[:, None])
     return AdaptiveResult(jnp.where(inside, t_eval, jnp.nan), nan(q, jnp.nan), nan(p, jnp.nan), nan(lam, jnp.nan),
-                          jnp.sum(inside.astype(jnp.int32)), state.n_accepted, state.n_rejected, status)
+                          jnp.sum(inside.astype(jnp.int32)), state.n_accepted, state.n_rejected, status,
+                          _roundoff_limited(state))
 
 
 _integrate_adaptive_compiled = _compile.jit(_integrate_adaptive, static_argnums=(0, 1, 2, 3, 4, 5, 6))
@@ -324,7 +341,7 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
     Returns
     -------
     AdaptiveResult
-        ``(t, q, p, lam, n_rows, n_steps, n_rejected, status)``: without ``t_eval`` the step
+        ``(t, q, p, lam, n_rows, n_steps, n_rejected, status, n_roundoff_limited)``: without ``t_eval`` the step
         points (row 0 is the initial value; ``max_steps + 1`` rows, those past ``n_rows`` NaN),
         with ``t_eval`` (an array, sorted in the direction of integration) one row per time.
         ``t_eval_rows`` as in :func:`~lobattodae.solve` (default: error-controlled steps end

@@ -11,7 +11,7 @@ the entries
               ``start``, ``stop``, the process, ...);
 ``index``     int64, the block's trajectories' positions in the global batch;
 ``q``, ``p``, ``lam``, ``status`` and, for error-controlled runs, ``t``, ``n_rows``,
-``n_steps``, ``n_rejected``: the results, trajectory-major;
+``n_steps``, ``n_rejected``, ``n_roundoff_limited``: the results, trajectory-major;
 ``digests``   0-d unicode string: JSON ``{entry: SHA-256 of its name, dtype, shape and C-order
               bytes}`` for every other entry.
 
@@ -21,7 +21,8 @@ block's name, the directory fsynced). Every array read is checked against its di
 bit flip, or a block rewritten with valid zip CRCs, is refused (:class:`EnsembleFileError`,
 naming the file) and recomputed by ``if_exists="resume"`` (:func:`resumable`, with a warning).
 Only regular files are opened: a FIFO or directory named like a block is refused, never waited
-on. Version 2 added ``digests``; version 1 files are refused with the version named.
+on. Version 2 added ``digests``, version 3 ``n_roundoff_limited``; files of other versions are
+refused with the version named.
 """
 
 from __future__ import annotations
@@ -62,7 +63,8 @@ __all__ = [
 #: The ``format`` in the ``meta`` of every block file.
 FILE_FORMAT = "lobattodae-ensemble"
 #: 2: every file has a ``digests`` entry (SHA-256 of each array); version 1 files had none.
-FILE_VERSION = 2
+#: 3: error-controlled runs save ``n_roundoff_limited``.
+FILE_VERSION = 3
 #: The names of block files, as a :mod:`glob` pattern.
 FILE_GLOB = "ensemble-p*-b*.npz"
 
