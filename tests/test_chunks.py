@@ -49,6 +49,12 @@ def _sixty_steps(knife):
     return f64(0.0), f64(3.0), ControlOptions(n=60), f64(knife.q0), f64(knife.p0), f64(knife.lam0)
 
 
+def _hidden(knife):
+    """λ(t0, q0, p0) of the knife edge's start (what solve's validation hands to start_host)."""
+    return np.asarray(L.consistent_lambda(knife.problem, 0.0, jnp.asarray(knife.q0), jnp.asarray(knife.p0),
+                                          jnp.asarray(knife.lam0), knife.args, iterations=1))
+
+
 def test_chunks_give_the_same_numbers_as_one_run(knife):
     m = L.LobattoIIIAIIIB(stages=3)
     c = ConstantStepSize()
@@ -75,7 +81,7 @@ def test_the_first_chunk_initialises_the_state_it_would_get_from_init_host(knife
     start = _sixty_steps(knife)
     state, packing = init_host(knife.problem, m, c, out, *start, knife.args)
     ref_state, ref = run_host(knife.problem, m, c, out, packing, state, knife.args, 64)
-    first, chunk, packing2 = start_host(knife.problem, m, c, out, *start, knife.args, 32)
+    first, chunk, packing2 = start_host(knife.problem, m, c, out, *start, knife.args, 32, lam_hidden=_hidden(knife))
     assert packing2 == packing and int(chunk.n_rows) == 32 and int(first.n_accepted) == 32
     rest, chunk2 = run_host(knife.problem, m, c, out, packing2, first, knife.args, 64)
     for f in ("t", "q", "p", "lam", "iterations"):
@@ -91,8 +97,9 @@ def test_a_sparse_output_chunk_runs_its_whole_length(knife):
     m = L.LobattoIIIAIIIB(stages=3)
     c = ConstantStepSize()
     start = _sixty_steps(knife)
-    state, chunk, packing = start_host(knife.problem, m, c, Output(), *start, knife.args, 32, recording_of(32, 50))
-    _, full, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64)
+    state, chunk, packing = start_host(knife.problem, m, c, Output(), *start, knife.args, 32, recording_of(32, 50),
+                                       lam_hidden=_hidden(knife))
+    _, full, _ = start_host(knife.problem, m, c, Output(), *start, knife.args, 64, lam_hidden=_hidden(knife))
     assert int(state.n_accepted) == 32 and int(chunk.n_rows) == 0
     state, chunk = run_host(knife.problem, m, c, Output(), packing, state, knife.args, 32, recording_of(32, 50))
     assert int(state.n_accepted) == 60 and int(chunk.n_rows) == 2  # the 50th step point and the last

@@ -461,3 +461,28 @@ def test_fuzz_bad_problem_functions(field, kind):
     assert f"{field}(" in msg or "hidden constraint" in msg, msg
     if kind == "raises":
         assert isinstance(info.value, L.ProblemFunctionError) and isinstance(info.value.__cause__, ValueError)
+
+
+@pytest.mark.parametrize("name", ["falling-disk-general", "knife-edge", "sleigh"])
+def test_validation_hands_on_the_start_multiplier_of_the_hidden_constraint(name):
+    """solve's run program takes λ(t0, q0, p0) (one Newton update of λ0, which a step's start
+    uses) from the validation that has just evaluated the hidden constraint and its Jacobian at
+    λ0, instead of tracing that solve once more: the value is the stepper's own to round-off,
+    for a computed λ0 and for a given one (off by less than the consistency tolerance)."""
+    from lobattodae._validate import validate_and_residual
+
+    ex = get_example(name)
+    q0, p0 = np.asarray(ex.q0, np.float64), np.asarray(ex.p0, np.float64)
+
+    def stepper_value(lam):
+        return np.asarray(L.consistent_lambda(ex.problem, 0.0, jnp.asarray(q0), jnp.asarray(p0), jnp.asarray(lam),
+                                              ex.args, iterations=1))
+
+    computed = validate_and_residual(ex.problem, 0.0, q0, p0, None, ex.args)
+    scale = 1.0 + np.max(np.abs(computed.lam0))
+    np.testing.assert_allclose(computed.lam_hidden, stepper_value(computed.lam0), rtol=0, atol=1e-13 * scale)
+    given_lam = computed.lam0 + 1e-11 * scale  # within the tolerance: accepted, and corrected by the update
+    given = validate_and_residual(ex.problem, 0.0, q0, p0, given_lam, ex.args)
+    np.testing.assert_array_equal(given.lam0, given_lam)
+    np.testing.assert_allclose(given.lam_hidden, stepper_value(given_lam), rtol=0, atol=1e-13 * scale)
+    assert np.max(np.abs(given.lam_hidden - computed.lam0)) < 1e-13 * scale

@@ -105,11 +105,14 @@ def _init_packed(problem, method, controller, output, packing, t0, t1, options, 
 
 
 @_compile.jit(static_argnames=("problem", "method", "controller", "output", "packing", "length"))
-def _run_packed(problem, method, controller, output, packing, fresh, floats, ints, start, args, length, recording):
+def _run_packed(problem, method, controller, output, packing, fresh, floats, ints, start, lam_hidden, args, length,
+                recording):
     """:func:`run` from the packed state, or (``fresh``) from the state :func:`init_state` makes of
-    ``start = (t0, t1, options, q0, p0, lam0)``: a run's first chunk needs no call of its own to
-    initialise, and every chunk runs the same compiled program."""
-    state = jax.lax.cond(fresh, lambda: init_state(problem, method, controller, output, *start, args),
+    ``start = (t0, t1, options, q0, p0, lam0)`` and ``lam_hidden`` (λ(t0, q0, p0), which the
+    caller computed when it validated the initial values: the program holds no hidden-constraint
+    solve for the start): a run's first chunk needs no call of its own to initialise, and every
+    chunk runs the same compiled program."""
+    state = jax.lax.cond(fresh, lambda: init_state(problem, method, controller, output, *start, args, lam_hidden),
                          lambda: packing.unpack(floats, ints))
     state, chunk = run(problem, method, controller, output, state, args, length, recording)
     return packing.pack(state), chunk
@@ -173,15 +176,16 @@ def init_host(problem, method, controller, output: Output, t0, t1, options: Cont
 
 
 def start_host(problem, method, controller, output: Output, t0, t1, options: ControlOptions, q0, p0, lam0, args,
-               length: int, recording: Recording | None = None) -> tuple[State, Chunk, StatePacking]:
+               length: int, recording: Recording | None = None, *, lam_hidden) -> tuple[State, Chunk, StatePacking]:
     """:func:`init_host` and the first :func:`run_host` in one compiled call (one dispatch and
     one state transfer less: most of a short run's fixed cost); returns the state after the
-    chunk, the chunk and the layout to hand to :func:`run_host` for the next chunks."""
+    chunk, the chunk and the layout to hand to :func:`run_host` for the next chunks.
+    ``lam_hidden``: λ(t0, q0, p0) from the hidden constraint (validation computes it)."""
     start = _start(t0, t1, options, q0, p0, lam0)
     packing = _state_packing(problem, method, controller, output, *start, args)
     packed = packing.empty()
     return *_run_chunk(problem, method, controller, output, packing, True, packed, start, args, length,
-                       recording), packing
+                       recording, np.asarray(lam_hidden, np.float64)), packing
 
 
 def run_host(problem, method, controller, output: Output, packing: StatePacking, state: State, args, length: int,
@@ -194,15 +198,16 @@ def run_host(problem, method, controller, output: Output, packing: StatePacking,
     n, m = np.shape(state.q)[-1], np.shape(state.lam)[-1]
     unused = _start(0.0, 0.0, ControlOptions(0, 0.0, 0.0, 0.0, 0.0), np.zeros(n), np.zeros(n), np.zeros(m))
     return _run_chunk(problem, method, controller, output, packing, False, packing.pack(state, np), unused, args,
-                      length, recording)
+                      length, recording, np.zeros(m))
 
 
-def _run_chunk(problem, method, controller, output, packing, fresh, packed, start, args, length, recording):
+def _run_chunk(problem, method, controller, output, packing, fresh, packed, start, args, length, recording,
+               lam_hidden):
     """One compiled chunk; its output comes to the host in one transfer, and the rows are
     unpacked there (NumPy views)."""
     recording = recording_of(length) if recording is None else recording
-    out = _run_packed(problem, method, controller, output, packing, np.asarray(fresh), *packed, start, args, length,
-                      recording)
+    out = _run_packed(problem, method, controller, output, packing, np.asarray(fresh), *packed, start, lam_hidden,
+                      args, length, recording)
     packed, chunk = jax.device_get(out)
     n, m = start[3].shape[-1], start[5].shape[-1]
     return packing.unpack(*packed), chunk._replace(rows=unpack_rows(*chunk.rows, n, m))

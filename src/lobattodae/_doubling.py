@@ -95,8 +95,8 @@ class StepDoubling:
         """``1 / (2^(2s-2) - 1)``: the half steps' share of the difference of the two results."""
         return 1.0 / (2.0 ** (2 * self.stages - 2) - 1.0)
 
-    def init(self, problem, t0, q0, p0, lam0, args: Any = None, h=None) -> DoublingState:
-        half = self.method.init(problem, t0, q0, p0, lam0, args, None if h is None else 0.5 * h)
+    def init(self, problem, t0, q0, p0, lam0, args: Any = None, h=None, lam_hidden=None) -> DoublingState:
+        half = self.method.init(problem, t0, q0, p0, lam0, args, None if h is None else 0.5 * h, lam_hidden)
         whole_h = jnp.asarray(0.0 if h is None else h, half.h_jacobian.dtype)
         return DoublingState(half, half.jacobian, whole_h, half.history)
 

@@ -214,7 +214,7 @@ def check_initial_values(problem, blocks, bounds, treedef, leaves, flags, paths,
     t0 = blocks.numbers[0]
     q0, p0, lam0 = blocks.initial
     first = bounds[0][0]
-    _, _, lam_first, _ = _validate_row(problem, t0, q0, p0, None, treedef, leaves, flags, paths, batch, first)
+    _, _, lam_first, _, _ = _validate_row(problem, t0, q0, p0, None, treedef, leaves, flags, paths, batch, first)
     m = lam_first.shape[0]
     if lam0.shape[1] != m:
         raise ShapeError(

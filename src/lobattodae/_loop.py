@@ -113,8 +113,9 @@ class State(NamedTuple):
 
 
 def init_state(problem, method: LobattoIIIAIIIB, controller, output: Output, t0, t1, options: ControlOptions,
-               q0, p0, lam0, args) -> State:
-    """The loop state at ``t0`` (λ0 must be consistent; nothing is validated here)."""
+               q0, p0, lam0, args, lam_hidden=None) -> State:
+    """The loop state at ``t0`` (λ0 must be consistent; nothing is validated here). ``lam_hidden``:
+    λ(t0, q0, p0) from the hidden constraint when the caller has it (else computed)."""
     dtype = q0.dtype
     ctrl = controller.init(problem, method, t0, t1, q0, p0, lam0, args, options.cast(dtype))
     _, h = controller.proposal(ctrl)
@@ -122,7 +123,7 @@ def init_state(problem, method: LobattoIIIAIIIB, controller, output: Output, t0,
     n_events = len(output.events)
     return State(
         q=q0, p=p0, lam=lam0,
-        stepper=method.init(problem, t0, q0, p0, lam0, args, h),
+        stepper=method.init(problem, t0, q0, p0, lam0, args, h, lam_hidden),
         controller=ctrl,
         last=empty_dense_step(t0, q0, p0, lam0, method.stages, method.pieces),
         events=EventState(

@@ -237,7 +237,8 @@ def _refuse_tracers(**inputs) -> None:
 def _run(problem, method, opt: RunOptions, q0, p0, lam0, args, throw, project_initial, progress, interrupted):
     """Validation, the loop state, the compiled chunks (progress, checkpoints, recovery), the
     Solution; ``interrupted()`` says whether Ctrl-C asked to stop."""
-    q0, p0, lam0, phi0 = validate_and_residual(problem, opt.t0, q0, p0, lam0, args, project=project_initial)
+    q0, p0, lam0, phi0, lam_hidden = validate_and_residual(problem, opt.t0, q0, p0, lam0, args,
+                                                           project=project_initial)
     method = for_error_control(method, opt.controller)
     _check_events(opt.output.events, opt.t0, q0, p0, args)
     report = progress_reporter(progress, opt)
@@ -261,7 +262,7 @@ def _run(problem, method, opt: RunOptions, q0, p0, lam0, args, throw, project_in
         while not interrupted() and (run is None or not (opt.finished(run.state) or opt.capped(run.state))):
             if run is None:
                 state, chunk, packing = start_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0,
-                                                   p0, lam0, args, opt.chunk, opt.recording(None))
+                                                   p0, lam0, args, opt.chunk, opt.recording(None), lam_hidden=lam_hidden)
                 run = _progress(opt, state)
             else:
                 state, chunk = run_host(problem, method, controller, output, packing, run.state, args, opt.chunk,

@@ -267,7 +267,7 @@ class LobattoIIIAIIIB:
         return self.extrapolate and se.extrapolation_gain(self.pair) <= se.MAX_EXTRAPOLATION_GAIN
 
     # -- stepping ---------------------------------------------------------------------------
-    def init(self, problem, t0, q0, p0, lam0, args: Any = None, h=None) -> StepperState:
+    def init(self, problem, t0, q0, p0, lam0, args: Any = None, h=None, lam_hidden=None) -> StepperState:
         """The state before the first step from ``(t0, q0, p0, λ0)``: no Jacobian, no history,
         ``λ(t0, q0, p0)`` from the hidden constraint (one Newton update of λ0).
 
@@ -285,6 +285,9 @@ class LobattoIIIAIIIB:
             Passed to the problem functions.
         h : float, optional
             The first step's size, recorded with the (still empty) Jacobian cache (default 0).
+        lam_hidden : array_like, shape (m,), optional
+            ``λ(t0, q0, p0)`` when the caller has it (:func:`~lobattodae.solve` computes it while
+            it validates the initial values); computed here otherwise.
 
         Returns
         -------
@@ -296,7 +299,10 @@ class LobattoIIIAIIIB:
         lam0 = jnp.asarray(lam0, dtype)
         s, n, m = self.stages, q0.shape[-1], lam0.shape[-1]
         zeros = Slopes(jnp.zeros((s, n), dtype), jnp.zeros((s, n), dtype), jnp.zeros((s, m), dtype))
-        lam_hidden = consistent_lambda(problem, jnp.asarray(t0, dtype), q0, jnp.asarray(p0, dtype), lam0, args, iterations=1)
+        if lam_hidden is None:
+            lam_hidden = consistent_lambda(problem, jnp.asarray(t0, dtype), q0, jnp.asarray(p0, dtype), lam0, args,
+                                           iterations=1)
+        lam_hidden = jnp.asarray(lam_hidden, dtype)
         return StepperState(
             jacobian=empty_jacobian_cache(self.n_unknowns(n, m), dtype),
             h_jacobian=jnp.asarray(0.0 if h is None else h, dtype),

@@ -11,7 +11,7 @@ against singularity.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -189,12 +189,24 @@ def validate_initial_values(
     ------
     ShapeError, InconsistentInitialValuesError, SingularConstraintError
     """
-    q0, p0, lam0, _ = validate_and_residual(problem, t0, q0, p0, lam0, args, project=project, tol=tol)
+    q0, p0, lam0, _, _ = validate_and_residual(problem, t0, q0, p0, lam0, args, project=project, tol=tol)
     return q0, p0, lam0
 
 
+class Initial(NamedTuple):
+    """Validated initial values, ``‖φ(t0, q0, p0)‖∞`` and ``λ(t0, q0, p0)`` from the hidden
+    constraint (one Newton update of λ0)."""
+
+    q0: np.ndarray
+    p0: np.ndarray
+    lam0: np.ndarray
+    phi_norm: float
+    lam_hidden: np.ndarray
+
+
 def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=False, tol=CONSISTENCY_TOL):
-    """:func:`validate_initial_values`, also returning ‖φ(t0, q0, p0)‖∞ of the values returned."""
+    """:func:`validate_initial_values`, also returning ‖φ(t0, q0, p0)‖∞ of the values returned
+    and λ(t0, q0, p0) from the hidden constraint (an :class:`Initial`)."""
     for attr in ("f", "g", "phi"):
         if not callable(getattr(problem, attr, None)):
             raise ProblemDefinitionError(
@@ -245,6 +257,7 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
         _check_finite_at_start(phi0, r, jac, lam0 is not None)
     _check_nonsingular(jac)
 
+    current = True  # r and jac are those at lam
     if lam0 is None:
         for _ in range(_LAMBDA_NEWTON_ITERATIONS):
             dlam = np.linalg.solve(jac, r)
@@ -254,6 +267,7 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
                     "could not compute a consistent λ0 from the hidden constraint (non-finite result)."
                 )
             if float(np.max(np.abs(dlam))) <= 1e-15 * (1.0 + float(np.max(np.abs(lam)))):
+                current = False  # converged: one more update would move λ by round-off
                 break
             _, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, q0, p0, lam, args))
         lam0 = np.asarray(lam)
@@ -267,7 +281,12 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
                 f"The consistent value is lam0 = {np.asarray(lam0) - dl} "
                 "(omit lam0 to have it computed)."
             )
-    return q0, np.asarray(p0, np.float64), np.asarray(lam0, np.float64), float(np.max(np.abs(phi0)))
+    lam0 = np.asarray(lam0, np.float64)
+    # λ(t0, q0, p0) as a step's start computes it (one Newton update of λ0; the stepper's initial
+    # state takes it from here instead of evaluating the hidden constraint's Jacobian once more)
+    lam_hidden = lam0 - np.linalg.solve(jac, r) if current else lam0
+    return Initial(q0, np.asarray(p0, np.float64), lam0, float(np.max(np.abs(phi0))), lam_hidden)
+
 
 
 @_compile.jit(static_argnums=0)
