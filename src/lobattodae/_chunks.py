@@ -149,8 +149,9 @@ def _state_packing(problem, method, controller, output, t0, t1, options, q0, p0,
            tuple((np.shape(x), x.dtype if hasattr(x, "dtype") else np.result_type(x)) for x in leaves))
     packing = _PACKINGS.get(key)
     if packing is None:
+        # λ(t0) given (its shape is λ0's): the layout needs no trace of the hidden-constraint solve
         shapes = jax.eval_shape(functools.partial(init_state, problem, method, controller, output),
-                                t0, t1, options, q0, p0, lam0, args)
+                                t0, t1, options, q0, p0, lam0, args, lam0)
         if len(_PACKINGS) >= _PACKINGS_MAX:
             _PACKINGS.clear()
         packing = _PACKINGS[key] = StatePacking.of(shapes)
