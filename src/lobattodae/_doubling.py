@@ -15,8 +15,13 @@ and the local error of the kept pair of half steps, ``2 C (h/2)^(2s-1)``, is est
 measures the step's own error, whatever λ mode, projection or problem, and where a step is
 too long for the asymptotic expansion (a fast transient, a constraint-damped mode outside
 the method's stability region, where |R(z)| → 1 instead of e^z → 0) the two
-approximations disagree and the step is rejected. A step costs three Newton solves, the whole
-step starting from its own Jacobian and predictor (kept across steps like the half steps').
+approximations disagree and the step is rejected. The divisor assumes the asymptotic ratio of
+the two errors, 2^(2s-2): a step just outside that range, where the ratio is smaller, is
+underestimated (Andrews' squeezer, s = 6: ratios 50–470 at its longest steps, estimates 3–400×
+too small, ``benchmarks/RESULTS.md`` 2026-11-28). A step costs three Newton solves, the whole
+step starting from its own Jacobian and predictor (kept across steps like the half steps'):
+an independent extrapolation, not the half steps' result, whose Newton failures are what keeps
+Andrews' steps out of that range (predicted from the halves, its error reached 92 × rtol).
 
 The three solves are one traced step of the method run three times (``lax.scan`` over
 "whole step, first half, second half"), so the compiled program holds the stage equations
