@@ -103,7 +103,8 @@ def test_tight_tolerances_on_long_runs_do_not_collapse_the_steps():
 def test_the_roundoff_count_is_the_same_from_every_entry_point(tmp_path):
     """``integrate_adaptive`` (where a run may be under jit and cannot warn) and ``ensemble``
     (which warns, as solve does) report the steps that passed only by the round-off floor, the
-    same count as ``solve``'s stats: knife edge, T = 50, rtol = 1e-13 (about half the steps; as many attempts are rejected)."""
+    same count as ``solve``'s stats: knife edge, T = 50, rtol = 1e-13 (about half the steps; as
+    many attempts are rejected)."""
     ex = get_example("knife-edge")
     q0, p0 = np.asarray(ex.q0), np.asarray(ex.p0)
     lam0 = np.asarray(L.consistent_lambda(ex.problem, 0.0, q0, p0, np.zeros(1), ex.args))

@@ -115,8 +115,8 @@ class EnsembleResult(NamedTuple):
     trajectory-major (axis 0 is the trajectory, then time for ``save="all"``).
 
     Fields that a run does not have are ``None``: ``t``, ``n_rows``, ``n_steps``,
-    ``n_rejected`` and ``n_roundoff_limited`` belong to error-controlled runs (constant steps are on the grid
-    ``t0 + k·h``); :func:`load_ensemble` with ``fields=`` leaves out the others.
+    ``n_rejected`` and ``n_roundoff_limited`` belong to error-controlled runs (constant steps
+    are on the grid ``t0 + k·h``); :func:`load_ensemble` with ``fields=`` leaves out the others.
 
     Attributes
     ----------
@@ -585,7 +585,8 @@ def _write_blocks(blocks: _Blocks, bounds, out_dir: str, if_exists: str, run_met
         if "n_roundoff_limited" in arrays:
             over.append(a + _over_roundoff(arrays["n_roundoff_limited"], mode))
         count["failed"] += int(np.count_nonzero(result["status"] != 0))
-    return count["failed"], count["skipped"], paths, np.concatenate(over, dtype=np.int64) if over else np.zeros(0, np.int64)
+    over = np.concatenate(over, dtype=np.int64) if over else np.zeros(0, np.int64)
+    return count["failed"], count["skipped"], paths, over
 
 
 def _problem_token(problem) -> str:

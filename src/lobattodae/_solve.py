@@ -262,7 +262,8 @@ def _run(problem, method, opt: RunOptions, q0, p0, lam0, args, throw, project_in
         while not interrupted() and (run is None or not (opt.finished(run.state) or opt.capped(run.state))):
             if run is None:
                 state, chunk, packing = start_host(problem, method, controller, output, opt.t0, opt.t1, opt.control, q0,
-                                                   p0, lam0, args, opt.chunk, opt.recording(None), lam_hidden=lam_hidden)
+                                                   p0, lam0, args, opt.chunk, opt.recording(None),
+                                                   lam_hidden=lam_hidden)
                 run = _progress(opt, state)
             else:
                 state, chunk = run_host(problem, method, controller, output, packing, run.state, args, opt.chunk,
