@@ -46,6 +46,7 @@ __all__ = [
     "PIController",
     "StepReport",
     "initial_step",
+    "roundoff_may_exceed",
 ]
 
 #: The smallest step size relative to the time, ``|h| ≥ MIN_RELATIVE_STEP·max(|t|, |t1 - t0|)``;
@@ -231,11 +232,19 @@ C_TOL = {2: 0.61, 3: 0.98, 4: 4.9, 5: 13.7}
 #: t = 372; with this floor 9,467 steps, none rejected, error 3.6e-11; with 1e-14: 13,474
 #: steps, 1,443 rejected, error 4.0e-10, the extra steps' round-off).
 ROUNDOFF_FLOOR = 1e-13
+
 #: The power of h that :meth:`PIController._observed_order` gives when a shorter attempt had no
 #: smaller error: ``err^(-1/STALLED_ORDER)`` is then far below ``fac_min``, which the step takes.
 STALLED_ORDER = 0.05
 #: The local error estimates :class:`PIController` knows.
 ESTIMATES = ("doubling", "embedded")
+
+
+def roundoff_may_exceed(n_floored, rtol):
+    """Whether ``n_floored`` steps that passed only by :data:`ROUNDOFF_FLOOR` may add up to more
+    than rtol (a count, or an array of counts: elementwise): the test by which
+    :func:`~lobattodae.solve` and :func:`~lobattodae.ensemble` warn."""
+    return n_floored * ROUNDOFF_FLOOR > rtol
 
 
 @dataclass(frozen=True)

@@ -54,7 +54,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from . import _compile
-from ._controllers import ROUNDOFF_FLOOR
+from ._controllers import ROUNDOFF_FLOOR, roundoff_may_exceed
 from ._errors import LobattoDAEInputError
 from ._integrate import integrate, integrate_adaptive
 from ._io import fingerprint_arrays, fingerprint_callable
@@ -603,7 +603,7 @@ def _args_token(shared, paths, flags) -> dict:
 
 def _over_roundoff(n_roundoff_limited: np.ndarray, mode: _Mode) -> np.ndarray:
     """Where (positions) the steps that passed only by the round-off floor may add up to more than rtol."""
-    return np.flatnonzero(np.asarray(n_roundoff_limited) * ROUNDOFF_FLOOR > float(mode.numbers[2]))
+    return np.flatnonzero(roundoff_may_exceed(np.asarray(n_roundoff_limited), float(mode.numbers[2])))
 
 
 def _warn_roundoff(over: np.ndarray, total: int, mode: _Mode) -> None:

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ._chunks import Progress
-from ._controllers import ROUNDOFF_FLOOR, PIController
+from ._controllers import ROUNDOFF_FLOOR, PIController, roundoff_may_exceed
 from ._reversible import ReversibleStepSize
 from ._dense import DenseOutput, stacked
 from ._errors import NewtonFailure
@@ -252,7 +252,7 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         )
         message = f"{message} Warning: {note}"
         warnings.warn(note, RuntimeWarning, stacklevel=4)  # the caller of solve
-    if floored and floored * ROUNDOFF_FLOOR > float(opt.control.rtol):
+    if floored and roundoff_may_exceed(floored, float(opt.control.rtol)):
         note = (
             f"{floored} of the {int(state.n_accepted)} steps asked for less than their round-off: rtol="
             f"{float(opt.control.rtol):.3g} shared over this interval asks each of them for a local error below "

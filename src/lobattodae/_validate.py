@@ -288,7 +288,6 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
     return Initial(q0, np.asarray(p0, np.float64), lam0, float(np.max(np.abs(phi0))), lam_hidden)
 
 
-
 @_compile.jit(static_argnums=0)
 def _mass_matrix_at(problem, t, q, args):
     return problem.mass_matrix(t, q, args)
