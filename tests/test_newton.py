@@ -141,3 +141,45 @@ def test_small_steps_do_not_stall_newton():
     ex = get_example("particle")
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 6.0), ex.q0, ex.p0, n_steps=2458, args=ex.args)
     assert sol.success and np.max(sol.stats["newton_iterations"]) <= REFRESH_ITERATIONS
+
+
+@pytest.mark.parametrize("n", [nw.BLOCKED_MIN, 217, 341])
+def test_blocked_factors_solve_like_the_inverse(n):
+    """The blocked LU factors kept from BLOCKED_MIN unknowns on solve J x = r as the inverse
+    does, with pivoting (a zero leading entry) and blocks of unequal size."""
+    rng = np.random.default_rng(n)
+    a = rng.standard_normal((n, n)) + np.sqrt(n) * np.eye(n)
+    a[0, 0] = 0.0
+    factors, perm = nw.blocked_factors(jnp.asarray(a))
+    assert len(factors) == 2 * (len(nw._block_edges(n)) - 1) >= 4
+    assert [f.shape[0] for f in factors] == [r * c for r, c in nw._block_shapes(n)]
+    r = rng.standard_normal(n)
+    x = nw._blocked_solve(factors, perm, jnp.asarray(r))
+    np.testing.assert_allclose(np.asarray(x), np.linalg.solve(a, r), rtol=0, atol=1e-13 * np.linalg.cond(a))
+
+
+def test_large_systems_keep_blocked_factors_and_converge():
+    """From BLOCKED_MIN unknowns the cache holds the blocked factors (and an empty cache has
+    their shapes, so that a jitted loop can carry it); Newton converges with them as with the
+    inverse: the same root, quadratic problem of BLOCKED_MIN unknowns."""
+    n = nw.BLOCKED_MIN
+    rng = np.random.default_rng(0)
+    m = jnp.asarray(rng.standard_normal((n, n)) / np.sqrt(n) + 2.0 * np.eye(n))
+    b = jnp.asarray(rng.standard_normal(n))
+
+    def f(x, _):
+        return m @ x + 0.1 * x**2 - b
+
+    def j(x, _):
+        return f(x, None), m + jnp.diag(0.2 * x)
+
+    empty = nw.empty_jacobian_cache(n, jnp.float64)
+    assert empty.perm.shape == (n,) and len(empty.factors) >= 4
+    x, info, cache = jax.jit(lambda x0: nw.newton_solve(f, j, x0, None, empty, nw.NewtonOptions()))(jnp.zeros(n))
+    assert int(info.result) == 0 and bool(cache.valid)
+    assert jax.tree_util.tree_structure(cache) == jax.tree_util.tree_structure(empty)
+    assert float(jnp.max(jnp.abs(f(x, None)))) < 1e-12
+    # a second solve from the kept factors (simplified Newton) converges to the same root
+    x2, info2, _ = nw.newton_solve(f, j, jnp.zeros(n) + 0.01, None, cache, nw.NewtonOptions())
+    assert int(info2.result) == 0 and int(info2.n_jacobians) == 0
+    np.testing.assert_allclose(np.asarray(x2), np.asarray(x), rtol=0, atol=1e-12)

@@ -59,7 +59,7 @@ pickled objects: it loads with ``allow_pickle=False``) of ``.npy`` members named
                   order, its dtype (:attr:`numpy.dtype.str`, numbers and booleans only), its
                   shape without the leading row axis and its number of rows so far.
 ``state/<name>``  one array per leaf of the loop-state pytree, ``<name>`` the dotted path of
-                  NamedTuple field names (``"y.q"``, ``"stepper.jacobian.inverse"``); see
+                  NamedTuple field names (``"y.q"``, ``"stepper.jacobian.factors.0"``); see
                   :func:`~lobattodae._io.fingerprint.state_fields`.  Shapes must match the
                   resuming run's state exactly; dtypes are cast (safely only) to the state's
                   dtypes.
@@ -85,7 +85,10 @@ delete the file or restart without resume.  (Version 1 is the ad-hoc ``leaf_{i}`
 lobattodae 0.1; it is recognised as such.  Version 3 is the single-file layout with
 ``rows/<name>`` entries in the main file, rewritten whole at every save.  Version 7 keeps the
 reused inverse Jacobian flattened, ``stepper.jacobian.inverse`` of shape (N²,) instead of
-(N, N).  Version 8 adds ``controller.n_floored`` to the state of error-controlled runs.)
+(N, N).  Version 8 adds ``controller.n_floored`` to the state of error-controlled runs.
+Version 9 keeps Newton's factorisation as ``stepper.jacobian.factors.<k>`` and
+``stepper.jacobian.perm``: the inverse as ``factors.0`` with an empty ``perm`` below
+:data:`lobattodae._newton.BLOCKED_MIN` unknowns, the blocked LU factors from there on.)
 
 Atomic writes
 -------------
@@ -176,12 +179,12 @@ __all__ = [
 ]
 
 FORMAT = "lobattodae-checkpoint"
-VERSION = 8
+VERSION = 9
 
 # schema_fingerprint(<the loop's State templates>) for the current VERSION: the States of constant
 # steps and of error control together; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "7692070318bf4a4b"  # schema_fingerprint of the States (constant, PI) of VERSION
+STATE_FINGERPRINT: str | None = "57c3ef76b59990a9"  # schema_fingerprint of the States (constant, PI) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"
