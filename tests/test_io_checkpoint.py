@@ -272,9 +272,10 @@ def test_checkpoint_error_is_an_input_error():
 def test_state_schema_is_versioned():
     """Changing the loop State (a field, a dtype, a rank) without bumping the checkpoint VERSION
     and recording the new fingerprint fails here: the states of constant steps and of error
-    control (the PI controller's memory) together."""
+    control (the PI controller's memory and step doubling's state) together."""
     from lobattodae._controllers import ConstantStepSize, ControlOptions, PIController
     from lobattodae._chunks import init_host
+    from lobattodae._doubling import for_error_control
     from lobattodae._io.fingerprint import schema_fingerprint
     from lobattodae._loop import Output
 
@@ -284,7 +285,9 @@ def test_state_schema_is_versioned():
     fixed, _ = init_host(ex.problem, L.LobattoIIIAIIIB(stages=4), ConstantStepSize(), Output(), *start,
                          ControlOptions(n=10), f64(ex.q0), f64(ex.p0), f64(ex.lam0), ex.args)
     control = ControlOptions(rtol=f64(1e-8), atol=f64(1e-8), first_step=f64(0.0), max_step=f64(np.inf))
-    adaptive, _ = init_host(ex.problem, L.LobattoIIIAIIIB(stages=4), PIController(), Output(), *start, control,
+    # as solve runs it: the method adapted to the controller (step doubling's state)
+    method = for_error_control(L.LobattoIIIAIIIB(stages=4), PIController())
+    adaptive, _ = init_host(ex.problem, method, PIController(), Output(), *start, control,
                             f64(ex.q0), f64(ex.p0), f64(ex.lam0), ex.args)
     assert schema_fingerprint((fixed, adaptive)) == C.STATE_FINGERPRINT, (
         "the loop State changed: bump lobattodae._io.checkpoint.VERSION and record the new STATE_FINGERPRINT"

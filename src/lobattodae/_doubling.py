@@ -55,11 +55,19 @@ NOISE = 2.0
 
 
 class DoublingState(NamedTuple):
-    """The half steps' state, and what the whole step keeps of its own."""
+    """The half steps' state, and what the whole step keeps of its own.
+
+    The two Jacobian factorisations (the whole step's, index 0, and the half steps', index 1)
+    are stacked in ``jacobians`` and not held in ``half`` (whose ``jacobian`` and
+    ``h_jacobian`` are None): each sub-step reads its own by index and writes it back in
+    place. Selected between sub-steps like the rest of the state, they were copied about
+    sixteen times per attempt, which doubled an attempt's time at 340 unknowns
+    (``benchmarks/RESULTS.md``, 2026-11-28 06:20).
+    """
 
     half: StepperState
-    whole_jacobian: JacobianCache
-    whole_h_jacobian: jax.Array
+    jacobians: JacobianCache  # every leaf with a leading axis of 2: (whole step, half steps)
+    h_jacobians: jax.Array  # (2,): the step sizes they were evaluated with
     whole_history: History
 
     @property
@@ -103,14 +111,16 @@ class StepDoubling:
     def init(self, problem, t0, q0, p0, lam0, args: Any = None, h=None, lam_hidden=None) -> DoublingState:
         half = self.method.init(problem, t0, q0, p0, lam0, args, None if h is None else 0.5 * h, lam_hidden)
         whole_h = jnp.asarray(0.0 if h is None else h, half.h_jacobian.dtype)
-        return DoublingState(half, half.jacobian, whole_h, half.history)
+        jacobians = jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), half.jacobian)
+        return DoublingState(half._replace(jacobian=None, h_jacobian=None), jacobians,
+                             jnp.stack([whole_h, half.h_jacobian]), half.history)
 
     def after_rejection(self, kept, new: DoublingState, old: DoublingState) -> DoublingState:
         """As :meth:`LobattoIIIAIIIB.after_rejection`, for the half steps' state and the whole
         step's own: both Jacobian factorisations are the attempt's."""
         half = self.method.after_rejection(kept, new.half, old.half)
         history = jax.tree_util.tree_map(functools.partial(jnp.where, kept), new.whole_history, old.whole_history)
-        return DoublingState(half, new.whole_jacobian, new.whole_h_jacobian, history)
+        return DoublingState(half, new.jacobians, new.h_jacobians, history)
 
     def step(self, problem, t0, q0, p0, lam0, h, args: Any = None, state: DoublingState | None = None):
         """A step of size h as two half steps, with the local error estimate (Richardson) in
@@ -119,21 +129,31 @@ class StepDoubling:
         if state is None:
             state = self.init(problem, t0, q0, p0, lam0, args, h)
         # the whole step starts from the same multiplier policy as the first half (same λ_0 data)
-        whole = state.half._replace(jacobian=state.whole_jacobian, h_jacobian=state.whole_h_jacobian,
-                                    history=state.whole_history)
+        whole = state.half._replace(history=state.whole_history)
 
-        def sub_step(chain, i):
-            """i = 0: the whole step; 1, 2: the half steps (``chain``: where the halves are)."""
+        def sub_step(carry, i):
+            """i = 0: the whole step; 1, 2: the half steps (``chain``: where the halves are;
+            ``jacobians``: both factorisations, read and written at index ``j``)."""
+            chain, jacobians, h_jacobians = carry
             q, p, lam, st = chain
             is_whole, is_second = i == 0, i == 2
+            j = jnp.minimum(i, 1)
             start = _where(is_second, (q, p, lam), (q0, p0, lam0))
             t = jnp.where(is_second, t0 + 0.5 * h, t0)
             size = jnp.where(is_whole, h, 0.5 * h)
-            q1, p1, lam1, info, new = self.method.step(problem, t, *start, size, args, _where(is_whole, whole, st))
-            return _where(is_whole, chain, (q1, p1, lam1, new)), (q1, p1, info, new)
+            cache = jax.tree_util.tree_map(lambda x: jax.lax.dynamic_index_in_dim(x, j, keepdims=False), jacobians)
+            st = _where(is_whole, whole, st)._replace(jacobian=cache, h_jacobian=h_jacobians[j])
+            q1, p1, lam1, info, new = self.method.step(problem, t, *start, size, args, st)
+            jacobians = jax.tree_util.tree_map(lambda x, y: jax.lax.dynamic_update_index_in_dim(x, y, j, 0),
+                                               jacobians, new.jacobian)
+            h_jacobians = h_jacobians.at[j].set(new.h_jacobian)
+            new = new._replace(jacobian=None, h_jacobian=None)
+            chain = _where(is_whole, chain, (q1, p1, lam1, new))
+            return (chain, jacobians, h_jacobians), (q1, p1, info, new.history)
 
-        chain = (q0, p0, lam0, state.half)
-        (q1, p1, lam1, half), (qs, ps, infos, news) = jax.lax.scan(sub_step, chain, jnp.arange(3))
+        carry = ((q0, p0, lam0, state.half), state.jacobians, state.h_jacobians)
+        ((q1, p1, lam1, half), jacobians, h_jacobians), (qs, ps, infos, histories) = jax.lax.scan(
+            sub_step, carry, jnp.arange(3))
         y1 = jnp.concatenate([q1, p1])
         diff = y1 - jnp.concatenate([qs[0], ps[0]])
         # Newton's tolerance bounds what the two results can agree to: below it the difference is noise
@@ -155,9 +175,7 @@ class StepDoubling:
             # converged (the first half), so the retry need not shrink further
             retry=jnp.where(failed[0] & ~jnp.any(failed[1:]), 0.5, jnp.min(infos.retry)),
         )
-        new_state = DoublingState(
-            half, *(jax.tree_util.tree_map(lambda x: x[0], x) for x in (news.jacobian, news.h_jacobian, news.history))
-        )
+        new_state = DoublingState(half, jacobians, h_jacobians, jax.tree_util.tree_map(lambda x: x[0], histories))
         return q1, p1, lam1, info, new_state
 
 

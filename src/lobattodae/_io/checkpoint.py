@@ -88,7 +88,8 @@ reused inverse Jacobian flattened, ``stepper.jacobian.inverse`` of shape (N²,) 
 (N, N).  Version 8 adds ``controller.n_floored`` to the state of error-controlled runs.
 Version 9 keeps Newton's factorisation as ``stepper.jacobian.factors.<k>`` and
 ``stepper.jacobian.perm``: the inverse as ``factors.0`` with an empty ``perm`` below
-:data:`lobattodae._newton.BLOCKED_MIN` unknowns, the blocked LU factors from there on.)
+:data:`lobattodae._newton.BLOCKED_MIN` unknowns, the blocked LU factors from there on; and
+error-controlled runs keep step doubling's two factorisations stacked, ``stepper.jacobians.*``.)
 
 Atomic writes
 -------------
@@ -184,7 +185,7 @@ VERSION = 9
 # schema_fingerprint(<the loop's State templates>) for the current VERSION: the States of constant
 # steps and of error control together; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "57c3ef76b59990a9"  # schema_fingerprint of the States (constant, PI) of VERSION
+STATE_FINGERPRINT: str | None = "a1e097b15bfadd4a"  # schema_fingerprint of the States (constant, PI) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"
