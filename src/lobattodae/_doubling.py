@@ -62,7 +62,7 @@ class DoublingState(NamedTuple):
     ``h_jacobian`` are None): each sub-step reads its own by index and writes it back in
     place. Selected between sub-steps like the rest of the state, they were copied about
     sixteen times per attempt, which doubled an attempt's time at 340 unknowns
-    (``benchmarks/RESULTS.md``, 2026-11-28 06:20).
+    (``benchmarks/RESULTS.md``, 2026-11-28 05:10).
     """
 
     half: StepperState

@@ -15,8 +15,8 @@ The kept factorisation is the inverse ``J⁻¹`` below :data:`BLOCKED_MIN` unkno
 is one matrix-vector product) and, from there on, the LU factors ``P J = L U`` with their
 diagonal blocks inverted (:func:`blocked_factors`: an iteration is a block forward and a block
 back substitution, one product per block row). Inverting the whole matrix costs about four
-LU factorisations; the blocked form costs little more than one, and its solve about 1.7 × a
-product with the inverse (``benchmarks/RESULTS.md``, 2026-11-28 05:30).
+LU factorisations; the blocked form costs little more than one, and its solve 1.6–2.2 × a
+product with the inverse (``benchmarks/RESULTS.md``, 2026-11-28 05:10).
 """
 
 from __future__ import annotations
