@@ -59,9 +59,11 @@ FAST_ITERATIONS = 3
 #: With a reused Jacobian the rate estimate is less reliable: demand a 10x smaller predicted error.
 KAPPA_STALE = 0.1
 #: From this many unknowns on, the kept factorisation is :func:`blocked_factors` instead of the
-#: inverse. Below it the inverse wins whenever a Jacobian serves more than 20-100 iterations
-#: (N = 54-120, measured), which long runs of small systems do.
-BLOCKED_MIN = 160
+#: inverse. Below 160 the inverse wins whenever a Jacobian serves more than 20-100 iterations
+#: (N = 54-120, measured). Off for now (no size reaches it): under ``vmap`` (``ensemble``) the
+#: vmapped :func:`blocked_factors` did not finish (N = 238, 2 trajectories; measured 2026-11-28,
+#: not yet understood), while ``solve`` gained 25-40 % on 340-620 unknowns (RESULTS.md).
+BLOCKED_MIN = 2**62
 #: The diagonal blocks of :func:`blocked_factors` have about this many rows.
 BLOCK_ROWS = 48
 
