@@ -5,18 +5,11 @@ split into :func:`newton_init`, :func:`newton_step` and :func:`newton_done`, wit
 stopping rules as named predicates. It never raises inside a trace: it returns a
 :class:`~lobattodae._results.Result` code with the iterate, and the caller decides.
 
-Simplified Newton: a factorisation of the Jacobian is kept in a :class:`JacobianCache`
-across iterations *and* across calls, and refreshed only when the iteration contracts slowly.
-Each iteration is then one residual evaluation and one solve with the kept factorisation; the
-converged solution is the same to the tolerance, since only the residual decides where the
-iteration stops.
-
-The kept factorisation is the inverse ``J⁻¹`` below :data:`BLOCKED_MIN` unknowns (an iteration
-is one matrix-vector product) and, from there on, the LU factors ``P J = L U`` with their
-diagonal blocks inverted (:func:`blocked_factors`: an iteration is a block forward and a block
-back substitution, one product per block row). Inverting the whole matrix costs about four
-LU factorisations; the blocked form costs little more than one, and its solve 1.6–2.2 × a
-product with the inverse (``benchmarks/RESULTS.md``, 2026-11-28 05:10).
+Simplified Newton: the inverse of the Jacobian (computed through an LU factorisation) is
+kept in a :class:`JacobianCache` across iterations *and* across calls, and refreshed only
+when the iteration contracts slowly. Each iteration is then one residual evaluation and one
+matrix-vector product; the converged solution is the same to the tolerance, since only the
+residual decides where the iteration stops.
 """
 
 from __future__ import annotations
@@ -58,14 +51,6 @@ THETA_DIVERGED = 2.0
 FAST_ITERATIONS = 3
 #: With a reused Jacobian the rate estimate is less reliable: demand a 10x smaller predicted error.
 KAPPA_STALE = 0.1
-#: From this many unknowns on, the kept factorisation is :func:`blocked_factors` instead of the
-#: inverse. Below 160 the inverse wins whenever a Jacobian serves more than 20-100 iterations
-#: (N = 54-120, measured). Off for now (no size reaches it): under ``vmap`` (``ensemble``) the
-#: vmapped :func:`blocked_factors` did not finish (N = 238, 2 trajectories; measured 2026-11-28,
-#: not yet understood), while ``solve`` gained 25-40 % on 340-620 unknowns (RESULTS.md).
-BLOCKED_MIN = 2**62
-#: The diagonal blocks of :func:`blocked_factors` have about this many rows.
-BLOCK_ROWS = 48
 
 
 @dataclass(frozen=True)
@@ -87,19 +72,15 @@ class NewtonOptions:
 
 
 class JacobianCache(NamedTuple):
-    """A factorisation of a stage Jacobian, kept between Newton solves (simplified Newton).
+    """The inverse of a stage Jacobian, kept between Newton solves (simplified Newton).
 
-    Below :data:`BLOCKED_MIN` unknowns ``factors`` is ``(J⁻¹,)`` and ``perm`` is empty; from
-    there on ``factors`` are the 2K row blocks of :func:`blocked_factors` and ``perm`` their row
-    permutation. Every matrix is flattened row by row: a matrix in the loop state would be laid
-    out column-major by XLA (as LAPACK's triangular solves return it) while XLA:CPU's product
-    wants it row-major, and it copied the matrix at the entry of each Newton loop. A vector has
-    one layout; the one transposing copy is made at the refresh. The blocks are separate
-    arrays, not slices of one: XLA copies a slice of a loop-carried buffer before a product
-    (4-6 × the solve's time at N = 200-480, measured)."""
+    ``inverse`` holds the N × N inverse flattened row by row, shape (N²,). A matrix in the
+    loop state would be laid out column-major by XLA (as LAPACK's triangular solves return
+    it) while XLA:CPU's product wants it row-major: it copied the matrix at the entry of each
+    Newton loop, two N² copies per step. A vector has one layout; the one transposing copy
+    is made where the inverse is computed."""
 
-    factors: tuple[jax.Array, ...]  # (J⁻¹,) or the blocks of blocked_factors, each flattened row-major
-    perm: jax.Array  # (N,) int32 row permutation of the blocked factors; (0,) with the inverse
+    inverse: jax.Array  # (N * N,), row-major
     valid: jax.Array  # bool scalar
 
 
@@ -127,13 +108,7 @@ class NewtonState(NamedTuple):
 
 
 def empty_jacobian_cache(size: int, dtype) -> JacobianCache:
-    blocked = size >= BLOCKED_MIN
-    shapes = _block_shapes(size) if blocked else ((size, size),)
-    return JacobianCache(
-        factors=tuple(jnp.zeros((rows * cols,), dtype) for rows, cols in shapes),
-        perm=jnp.zeros((size if blocked else 0,), jnp.int32),
-        valid=jnp.asarray(False),
-    )
+    return JacobianCache(inverse=jnp.zeros((size * size,), dtype), valid=jnp.asarray(False))
 
 
 def newton_init(x0, cache: JacobianCache) -> NewtonState:
@@ -192,12 +167,9 @@ def needs_refresh(theta, nrm, k, first, stale):
 
 # -- one iteration ----------------------------------------------------------------------------
 def fresh_jacobian(jac_fn, params, x) -> JacobianCache:
-    """Evaluate the Jacobian at x and factorise it (see :class:`JacobianCache`)."""
+    """Evaluate the Jacobian at x and invert it (flattened, see :class:`JacobianCache`)."""
     _, jac = jac_fn(x, params)
-    if jac.shape[0] >= BLOCKED_MIN:
-        factors, perm = blocked_factors(jac)
-        return JacobianCache(factors, perm, jnp.asarray(True))
-    return JacobianCache((inverse(jac).ravel(),), jnp.zeros((0,), jnp.int32), jnp.asarray(True))
+    return JacobianCache(inverse(jac).ravel(), jnp.asarray(True))
 
 
 def inverse(a):
@@ -210,71 +182,11 @@ def inverse(a):
     return jax.lax.linalg.triangular_solve(lu, lower, left_side=True, lower=False)
 
 
-def _block_edges(size: int) -> tuple[int, ...]:
-    """The row where each diagonal block of :func:`blocked_factors` starts, and ``size``."""
-    k = max(2, round(size / BLOCK_ROWS))
-    return tuple(round(size * i / k) for i in range(k + 1))
-
-
-def _block_shapes(size: int) -> tuple[tuple[int, int], ...]:
-    """The shapes of :func:`blocked_factors`' blocks: ``F_1 … F_K``, then ``B_1 … B_K``."""
-    spans = list(zip(_block_edges(size)[:-1], _block_edges(size)[1:]))
-    return tuple((a1 - a0, a1) for a0, a1 in spans) + tuple((a1 - a0, size - a0) for a0, a1 in spans)
-
-
-def blocked_factors(a):
-    r"""The LU factors of ``a`` with their diagonal blocks inverted, for block substitution.
-
-    With ``P a = L U`` (partial pivoting) cut into K block rows ``[a_k, b_k)``, block row k of
-    the forward substitution ``L y = P r`` and of the back substitution ``U x = y`` are
-
-        y_k = L_kk⁻¹ [−L_k,<k | I] (y_<k, (P r)_k),     x_k = U_kk⁻¹ [I | −U_k,>k] (y_k, x_>k),
-
-    one product each with the row blocks ``F_k = L_kk⁻¹ [−L_k,<k | I]`` (b × b_k) and
-    ``B_k = U_kk⁻¹ [I | −U_k,>k]`` (b × (N − a_k)). Those are computed here, by triangular
-    solves with the diagonal blocks (about b/N of an LU's flops each). Returns
-    ``((F_1, …, F_K, B_1, …, B_K), perm)``, each block flattened row by row.
-    """
-    size = a.shape[0]
-    lu, _, perm = jax.lax.linalg.lu(a)
-    edges = _block_edges(size)
-    forward, back = [], []
-    for a0, a1 in zip(edges[:-1], edges[1:]):
-        eye = jnp.eye(a1 - a0, dtype=a.dtype)
-        diag = lu[a0:a1, a0:a1]
-        rhs = jnp.concatenate([-lu[a0:a1, :a0], eye], axis=1)
-        forward.append(jax.lax.linalg.triangular_solve(diag, rhs, left_side=True, lower=True, unit_diagonal=True))
-        rhs = jnp.concatenate([eye, -lu[a0:a1, a1:]], axis=1)
-        back.append(jax.lax.linalg.triangular_solve(diag, rhs, left_side=True, lower=False))
-    return tuple(f.ravel() for f in forward + back), perm.astype(jnp.int32)
-
-
-def _blocked_solve(factors, perm, r):
-    """``J⁻¹ r`` from :func:`blocked_factors`: K products forward, K back."""
-    size = r.shape[0]
-    spans = list(zip(_block_edges(size)[:-1], _block_edges(size)[1:]))
-    blocks = [f.reshape(shape) for f, shape in zip(factors, _block_shapes(size))]
-    z, y = r[perm], r[:0]
-    for (a0, a1), block in zip(spans, blocks):
-        y = jnp.concatenate([y, block @ jnp.concatenate([y, z[a0:a1]])])
-    x = r[:0]
-    for (a0, _), block in zip(reversed(spans), reversed(blocks[len(spans):])):
-        x = jnp.concatenate([block @ jnp.concatenate([y[a0:a0 + block.shape[0]], x]), x])
-    return x
-
-
-def _solve(cache: JacobianCache, r):
-    """``J⁻¹ r`` with the kept factorisation (see :class:`JacobianCache`)."""
-    if cache.perm.shape[0]:
-        return _blocked_solve(cache.factors, cache.perm, r)
-    return cache.factors[0].reshape(r.shape[0], r.shape[0]) @ r
-
-
-def _increment(fn, params, x, cache: JacobianCache):
-    """``x ← x - J⁻¹ fn(x)`` with the kept factorisation: returns the new iterate, the
-    increment and the residual."""
+def _increment(fn, params, x, inverse):
+    """``x ← x - J⁻¹ fn(x)`` (``inverse``: J⁻¹ flattened row by row): returns the new
+    iterate, the increment and the residual."""
     r = fn(x, params)
-    dx = _solve(cache, r)
+    dx = inverse.reshape(r.shape[0], r.shape[0]) @ r
     return x - dx, dx, r
 
 
@@ -326,7 +238,7 @@ def newton_step(fn, params, st: NewtonState, options: NewtonOptions) -> NewtonSt
     ``st.refresh`` says that the cache was evaluated at this iterate (a Newton step proper);
     otherwise the Jacobian is from an earlier iterate or step (``stale``).
     """
-    x, dx, r = _increment(fn, params, st.x, st.cache)
+    x, dx, r = _increment(fn, params, st.x, st.cache.inverse)
     return _judge(st, x, dx, r, options)
 
 
@@ -344,7 +256,7 @@ def fast_start(fn, params, st: NewtonState, options: NewtonOptions) -> NewtonSta
 
     def iteration(_, carry):
         _, x, _, _, nrm, nrm_prev, _ = carry
-        x_new, dx, r = _increment(fn, params, x, st.cache)
+        x_new, dx, r = _increment(fn, params, x, st.cache.inverse)
         return x, x_new, dx, r, _scaled_norm(dx, x_new, options.tol), nrm, nrm_prev
 
     zero = jnp.zeros_like(st.x)

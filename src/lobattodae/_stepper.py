@@ -77,8 +77,7 @@ class StepperState(NamedTuple):
     Attributes
     ----------
     jacobian : JacobianCache
-        The factorisation of the stage Jacobian kept for simplified Newton, and whether it is
-        valid.
+        The inverse of the stage Jacobian kept for simplified Newton, and whether it is valid.
     h_jacobian : jax.Array
         The step size that Jacobian was evaluated with.
     history : History
@@ -156,7 +155,7 @@ class LobattoIIIAIIIB:
     (a projection after the step): both hold to round-off, the orders of q and p are kept,
     but the step is then not symmetric. Without ψ nothing is added to the step.
 
-    Newton works on ``Z_j = h Λ_j`` with a structured Jacobian whose factorisation is reused across
+    Newton works on ``Z_j = h Λ_j`` with a structured Jacobian whose inverse is reused across
     iterations and steps (refreshed when the contraction slows or h changes by more than
     20 %), starting from the previous step's stage polynomials evaluated at the new stage
     times.
@@ -170,8 +169,7 @@ class LobattoIIIAIIIB:
     max_iterations : int
         Newton iterations per step before the step is declared failed.
     reuse_jacobian : bool
-        Simplified Newton (default): keep the Jacobian's factorisation across iterations and
-        steps.
+        Simplified Newton (default): keep the inverse Jacobian across iterations and steps.
     lam_start : {"auto", "previous", "consistent"}
         What the start multiplier ``Λ_1`` of a step is.
 

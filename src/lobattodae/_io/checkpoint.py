@@ -59,7 +59,7 @@ pickled objects: it loads with ``allow_pickle=False``) of ``.npy`` members named
                   order, its dtype (:attr:`numpy.dtype.str`, numbers and booleans only), its
                   shape without the leading row axis and its number of rows so far.
 ``state/<name>``  one array per leaf of the loop-state pytree, ``<name>`` the dotted path of
-                  NamedTuple field names (``"y.q"``, ``"stepper.jacobian.factors.0"``); see
+                  NamedTuple field names (``"y.q"``, ``"stepper.jacobian.inverse"``); see
                   :func:`~lobattodae._io.fingerprint.state_fields`.  Shapes must match the
                   resuming run's state exactly; dtypes are cast (safely only) to the state's
                   dtypes.
@@ -86,10 +86,8 @@ lobattodae 0.1; it is recognised as such.  Version 3 is the single-file layout w
 ``rows/<name>`` entries in the main file, rewritten whole at every save.  Version 7 keeps the
 reused inverse Jacobian flattened, ``stepper.jacobian.inverse`` of shape (N²,) instead of
 (N, N).  Version 8 adds ``controller.n_floored`` to the state of error-controlled runs.
-Version 9 keeps Newton's factorisation as ``stepper.jacobian.factors.<k>`` and
-``stepper.jacobian.perm``: the inverse as ``factors.0`` with an empty ``perm`` below
-:data:`lobattodae._newton.BLOCKED_MIN` unknowns, the blocked LU factors from there on; and
-error-controlled runs keep step doubling's two factorisations stacked, ``stepper.jacobians.*``.)
+Version 9 keeps step doubling's two inverse Jacobians stacked in the state of
+error-controlled runs, ``stepper.jacobians.inverse`` of shape (2, N²).)
 
 Atomic writes
 -------------
@@ -185,7 +183,7 @@ VERSION = 9
 # schema_fingerprint(<the loop's State templates>) for the current VERSION: the States of constant
 # steps and of error control together; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "a1e097b15bfadd4a"  # schema_fingerprint of the States (constant, PI) of VERSION
+STATE_FINGERPRINT: str | None = "c898476a30e85b2c"  # schema_fingerprint of the States (constant, PI) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"

@@ -80,7 +80,7 @@ def state_fields(template: Any) -> list[tuple[str, str, tuple[int, ...]]]:
     """``(name, dtype, shape)`` of every leaf of a state pytree, in flattening order.
 
     ``name`` joins the path's NamedTuple field names (dict keys, sequence indices) with dots,
-    e.g. ``"stepper.jacobian.factors.0"``; a bare array is called ``"root"``.  ``dtype`` is the
+    e.g. ``"stepper.jacobian.inverse"``; a bare array is called ``"root"``.  ``dtype`` is the
     numpy dtype name (``"float64"``, ``"int32"``, ``"bool"``).  Leaves may be arrays, numpy
     or Python scalars, or :class:`jax.ShapeDtypeStruct`; ``None`` subtrees have no leaves.
     """
@@ -97,9 +97,8 @@ def schema_fingerprint(template: Any) -> str:
 
     It covers the leaves' names, dtypes and ranks, in order, but not their sizes, which
     depend on the problem (n, m, stages): the same State code gives the same fingerprint
-    for every problem below :data:`lobattodae._newton.BLOCKED_MIN` stage unknowns (from there
-    on Newton's factorisation has more blocks, each a leaf), and a renamed, added, removed,
-    retyped or reshaped-in-rank field changes it.
+    for every problem, and a renamed, added, removed, retyped or reshaped-in-rank field
+    changes it.
     """
     schema = [[name, dtype, len(shape)] for name, dtype, shape in state_fields(template)]
     blob = json.dumps(schema, separators=(",", ":")).encode()
