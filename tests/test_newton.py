@@ -141,3 +141,33 @@ def test_small_steps_do_not_stall_newton():
     ex = get_example("particle")
     sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 6.0), ex.q0, ex.p0, n_steps=2458, args=ex.args)
     assert sol.success and np.max(sol.stats["newton_iterations"]) <= REFRESH_ITERATIONS
+
+
+def test_vmapped_solves_evaluate_no_jacobian_that_no_trajectory_asks_for():
+    """Under ``vmap`` (``ensemble``) a ``lax.cond`` on the per-trajectory refresh flag becomes a
+    select that evaluates and inverts the Jacobian in every epoch; the refresh is a loop that runs
+    only when a trajectory asks. Counted by a callback on the Jacobian's value: none with valid
+    caches that converge, some when one trajectory's cache is invalid, and that trajectory alone
+    takes the fresh one (the others keep theirs, and the roots agree with solving one at a time)."""
+    calls = []
+
+    def jac(x, c):
+        value, j = _jac(x, c)
+        jax.debug.callback(lambda v: calls.append(1), j[0, 0])
+        return value, j
+
+    options = nw.NewtonOptions()
+    _, _, cache = _solve([1.3, 1.0])
+    caches = jax.tree_util.tree_map(lambda a: jnp.stack([a] * 4), cache)
+    x0 = jnp.asarray([[1.0 + 1e-9 * i, 2.0 - 1e-9 * i] for i in range(4)])
+    solve = jax.jit(jax.vmap(lambda x, cache: nw.newton_solve(_system, jac, x, 1.0, cache, options)))
+    x, info, out = jax.block_until_ready(solve(x0, caches))
+    assert calls == [] and np.all(np.asarray(info.result) == Result.SUCCESSFUL)
+    np.testing.assert_allclose(x, np.tile([1.0, 2.0], (4, 1)), rtol=1e-14)
+
+    invalid = caches._replace(valid=caches.valid.at[2].set(False), inverse=caches.inverse.at[2].set(0.0))
+    x, info, out = jax.block_until_ready(solve(x0, invalid))
+    assert calls and np.asarray(info.n_jacobians).tolist() == [0, 0, 1, 0]
+    np.testing.assert_array_equal(np.asarray(out.inverse)[[0, 1, 3]], np.asarray(caches.inverse)[[0, 1, 3]])
+    one, _, _ = nw.newton_solve(_system, _jac, x0[2], 1.0, nw.empty_jacobian_cache(2, jnp.float64), options)
+    np.testing.assert_allclose(x[2], one, rtol=0, atol=1e-15)

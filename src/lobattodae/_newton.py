@@ -272,6 +272,22 @@ def fast_start(fn, params, st: NewtonState, options: NewtonOptions) -> NewtonSta
     return _judge(before, x, dx, r, options)
 
 
+def _refreshed(jac_fn, params, st: NewtonState) -> JacobianCache:
+    """The cache, replaced by a fresh Jacobian at ``st.x`` where ``st.refresh`` asks for one.
+
+    A loop that runs at most once, not a ``lax.cond``: under ``vmap`` (``ensemble``) a cond on a
+    batched predicate becomes a select that evaluates and inverts the Jacobian for every
+    trajectory at every epoch, while the loop runs once, for all, only when one of them asks
+    (and keeps the others' caches); unbatched the two are the same."""
+    def fresh(carry):
+        # x through a barrier with the loop's flag: otherwise XLA hoists the loop-invariant
+        # Jacobian out of the loop, and evaluates it whether asked or not
+        x = jax.lax.optimization_barrier((carry[0], st.x))[1]
+        return jnp.asarray(False), fresh_jacobian(jac_fn, params, x)
+
+    return jax.lax.while_loop(lambda carry: carry[0], fresh, (st.refresh, st.cache))[1]
+
+
 def newton_done(st: NewtonState):
     return st.result >= 0
 
@@ -301,8 +317,7 @@ def newton_solve(
         # A fresh Jacobian at the current iterate when asked (at most once per epoch), then
         # iterations until the solve ends or the contraction asks for another refresh (the
         # first iteration of an epoch always runs: refresh=True marks it as the fresh one).
-        cache = jax.lax.cond(st.refresh, lambda x: fresh_jacobian(jac_fn, params, x), lambda x: st.cache, st.x)
-        st = st._replace(cache=cache, n_jac=st.n_jac + st.refresh.astype(jnp.int32))
+        st = st._replace(cache=_refreshed(jac_fn, params, st), n_jac=st.n_jac + st.refresh.astype(jnp.int32))
         first = (jnp.asarray(True), st)
         _, out = jax.lax.while_loop(
             lambda c: c[0] | (~newton_done(c[1]) & ~c[1].refresh),
