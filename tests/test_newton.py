@@ -145,10 +145,11 @@ def test_small_steps_do_not_stall_newton():
 
 def test_vmapped_solves_evaluate_no_jacobian_that_no_trajectory_asks_for():
     """Under ``vmap`` (``ensemble``) a ``lax.cond`` on the per-trajectory refresh flag becomes a
-    select that evaluates and inverts the Jacobian in every epoch; the refresh is a loop that runs
-    only when a trajectory asks. Counted by a callback on the Jacobian's value: none with valid
-    caches that converge, some when one trajectory's cache is invalid, and that trajectory alone
-    takes the fresh one (the others keep theirs, and the roots agree with solving one at a time)."""
+    select that evaluates and inverts the Jacobian in every epoch; the refresh's batching rule
+    evaluates only the Jacobians asked for. Counted by a callback on the Jacobian's value: none
+    with valid caches that converge; when one trajectory's cache is invalid, on a CPU one
+    evaluation (that trajectory's; elsewhere the batch's), and that trajectory alone takes the
+    fresh one (the others keep theirs, and the roots agree with solving one at a time)."""
     calls = []
 
     def jac(x, c):
@@ -167,7 +168,8 @@ def test_vmapped_solves_evaluate_no_jacobian_that_no_trajectory_asks_for():
 
     invalid = caches._replace(valid=caches.valid.at[2].set(False), inverse=caches.inverse.at[2].set(0.0))
     x, info, out = jax.block_until_ready(solve(x0, invalid))
-    assert calls and np.asarray(info.n_jacobians).tolist() == [0, 0, 1, 0]
+    assert len(calls) == 1 if jax.default_backend() == "cpu" else calls
+    assert np.asarray(info.n_jacobians).tolist() == [0, 0, 1, 0]
     np.testing.assert_array_equal(np.asarray(out.inverse)[[0, 1, 3]], np.asarray(caches.inverse)[[0, 1, 3]])
     one, _, _ = nw.newton_solve(_system, _jac, x0[2], 1.0, nw.empty_jacobian_cache(2, jnp.float64), options)
     np.testing.assert_allclose(x[2], one, rtol=0, atol=1e-15)

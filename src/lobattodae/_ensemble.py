@@ -252,15 +252,14 @@ def _run_block(plan: _Plan, numbers, shared, q0, p0, lam0, batched):
 def _in_turn(adaptive: bool, devices) -> bool:
     """Error-controlled trajectories on CPU devices run one after the other (``lax.map``), not
     vmapped: under ``vmap`` every ``while_loop`` (the steps, Newton's iterations) runs until the
-    slowest trajectory is done, and a Jacobian refresh that one trajectory asks for is computed
-    for all of them, which a CPU pays in full, while a GPU needs the batch to fill itself.
-    Measured (16 trajectories, s = 3, rtol 1e-8, one CPU; ms per trajectory, vmapped / in turn /
-    a loop of ``solve`` calls): knife edge T = 10: 12.5 / 10.3 / 12.9; falling disk: 64 / 33 /
-    37; a chain of 14 particles (238 unknowns) T = 5: 355 / 98 / 95. Constant steps stay
-    vmapped: their steps run in lockstep (knife edge, 200 steps: 0.51 / 1.90 / 2.49 for a loop
-    of ``integrate`` calls; vertical disk 3.1 / 4.8 / 6.5; chain of 5: 4.8 / 6.0 / 8.9); they lose
-    where the refreshes of all trajectories together outnumber one's (falling disk 10.0 / 7.6 /
-    9.7; chain of 14: 76 / 25 / 29). benchmarks/RESULTS.md, 2026-11-28 09:40."""
+    slowest trajectory is done, which a CPU pays in full, while a GPU needs the batch to fill
+    itself. Measured (16 trajectories, s = 3, rtol 1e-8, one CPU; ms per trajectory, vmapped /
+    in turn / a loop of ``solve`` calls): knife edge T = 10: 12.0 / 10.1 / 12.6; falling disk:
+    50 / 32 / 41; a chain of 14 particles (238 unknowns) T = 5: 344 / 124 / 106. Constant steps
+    stay vmapped: their steps run in lockstep (200 steps, against a loop of ``integrate``
+    calls: knife edge 0.76 / 2.80 / 2.34; falling disk 5.2 / 8.5 / 10.5; chain of 5 5.1 / 5.8 /
+    7.1), except for large systems, where every Newton iteration waits for the slowest trajectory
+    (chain of 14: 54 / 29 / 33). ``benchmarks/ensemble_lanes.py``, RESULTS.md 2026-11-28."""
     return adaptive and all(d.platform == "cpu" for d in devices)
 
 

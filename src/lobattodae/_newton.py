@@ -275,17 +275,54 @@ def fast_start(fn, params, st: NewtonState, options: NewtonOptions) -> NewtonSta
 def _refreshed(jac_fn, params, st: NewtonState) -> JacobianCache:
     """The cache, replaced by a fresh Jacobian at ``st.x`` where ``st.refresh`` asks for one.
 
-    A loop that runs at most once, not a ``lax.cond``: under ``vmap`` (``ensemble``) a cond on a
-    batched predicate becomes a select that evaluates and inverts the Jacobian for every
-    trajectory at every epoch, while the loop runs once, for all, only when one of them asks
-    (and keeps the others' caches); unbatched the two are the same."""
-    def fresh(carry):
-        # x through a barrier with the loop's flag: otherwise XLA hoists the loop-invariant
-        # Jacobian out of the loop, and evaluates it whether asked or not
-        x = jax.lax.optimization_barrier((carry[0], st.x))[1]
-        return jnp.asarray(False), fresh_jacobian(jac_fn, params, x)
+    Unbatched a ``lax.cond``. Under ``vmap`` (``ensemble``) a cond on a batched predicate would
+    become a select that evaluates and inverts the Jacobian of every trajectory at every epoch;
+    the batching rule instead refreshes only the trajectories that ask: one after the other on a
+    CPU (a loop over them, each a ``lax.cond``), and on other backends all at once when one asks,
+    keeping the others' caches (a GPU pays for a batch what it pays for one)."""
+    # The refresh as a function of explicit arguments only: what the Jacobian closes over (the
+    # tableau, the problem's constants: values of the enclosing trace) becomes ``consts``, since
+    # a custom_vmap function may not close over values that vmap batches.
+    closed, shape = jax.make_jaxpr(lambda x, params: fresh_jacobian(jac_fn, params, x), return_shape=True)(st.x, params)
+    out_tree = jax.tree_util.tree_structure(shape)
 
-    return jax.lax.while_loop(lambda carry: carry[0], fresh, (st.refresh, st.cache))[1]
+    def fresh(x, params, consts):
+        out = jax.core.eval_jaxpr(closed.jaxpr, consts, *jax.tree_util.tree_leaves((x, params)))
+        return jax.tree_util.tree_unflatten(out_tree, out)
+
+    @jax.custom_batching.custom_vmap
+    def refreshed(refresh, x, params, consts, cache):
+        return jax.lax.cond(refresh, lambda: fresh(x, params, consts), lambda: cache)
+
+    @refreshed.def_vmap
+    def _batched(size, batched, refresh, x, params, consts, cache):
+        b_refresh, b_x, b_params, b_consts, b_cache = batched
+        refresh = refresh if b_refresh else jnp.broadcast_to(refresh, (size,))
+        cache = jax.tree_util.tree_map(lambda c, b: c if b else jnp.broadcast_to(c, (size,) + c.shape), cache, b_cache)
+        if jax.default_backend() == "cpu":
+            def lane(tree, flags, i):
+                return jax.tree_util.tree_map(lambda a, b: a[i] if b else a, tree, flags)
+
+            def one(i, cache):
+                def update():
+                    new = fresh(lane(x, b_x, i), lane(params, b_params, i), lane(consts, b_consts, i))
+                    return jax.tree_util.tree_map(lambda c, n: c.at[i].set(n), cache, new)
+
+                return jax.lax.cond(refresh[i], update, lambda: cache)
+
+            cache = jax.lax.fori_loop(0, size, one, cache)
+        else:
+            axes = jax.tree_util.tree_map(lambda b: 0 if b else None, (b_x, b_params, b_consts))
+            cache = jax.lax.cond(
+                jnp.any(refresh),
+                lambda: jax.tree_util.tree_map(
+                    lambda n, c: jnp.where(refresh.reshape((size,) + (1,) * (c.ndim - 1)), n, c),
+                    jax.vmap(fresh, in_axes=axes)(x, params, consts), cache),
+                lambda: cache,
+            )
+        return cache, jax.tree_util.tree_map(lambda _: True, cache)
+
+    return refreshed(st.refresh, st.x, params, list(closed.consts), st.cache)
 
 
 def newton_done(st: NewtonState):
