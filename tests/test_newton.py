@@ -143,13 +143,17 @@ def test_small_steps_do_not_stall_newton():
     assert sol.success and np.max(sol.stats["newton_iterations"]) <= REFRESH_ITERATIONS
 
 
-def test_vmapped_solves_evaluate_no_jacobian_that_no_trajectory_asks_for():
+@pytest.mark.parametrize("branch", ["cpu", "batch"])
+def test_vmapped_solves_evaluate_no_jacobian_that_no_trajectory_asks_for(branch, monkeypatch):
     """Under ``vmap`` (``ensemble``) a ``lax.cond`` on the per-trajectory refresh flag becomes a
     select that evaluates and inverts the Jacobian in every epoch; the refresh's batching rule
     evaluates only the Jacobians asked for. Counted by a callback on the Jacobian's value: none
-    with valid caches that converge; when one trajectory's cache is invalid, on a CPU one
-    evaluation (that trajectory's; elsewhere the batch's), and that trajectory alone takes the
-    fresh one (the others keep theirs, and the roots agree with solving one at a time)."""
+    with valid caches that converge; when one trajectory's cache is invalid, one evaluation on a
+    CPU (that trajectory's), the batch's on other backends ("batch": the rule's other branch,
+    taken by pretending to be on a GPU); either way that trajectory alone takes the fresh one
+    (the others keep theirs, and the roots agree with solving one at a time)."""
+    if branch == "batch":
+        monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     calls = []
 
     def jac(x, c):
@@ -168,8 +172,9 @@ def test_vmapped_solves_evaluate_no_jacobian_that_no_trajectory_asks_for():
 
     invalid = caches._replace(valid=caches.valid.at[2].set(False), inverse=caches.inverse.at[2].set(0.0))
     x, info, out = jax.block_until_ready(solve(x0, invalid))
-    assert len(calls) == 1 if jax.default_backend() == "cpu" else calls
+    assert len(calls) == (1 if branch == "cpu" else 4)
     assert np.asarray(info.n_jacobians).tolist() == [0, 0, 1, 0]
     np.testing.assert_array_equal(np.asarray(out.inverse)[[0, 1, 3]], np.asarray(caches.inverse)[[0, 1, 3]])
+    assert np.asarray(out.valid).all()
     one, _, _ = nw.newton_solve(_system, _jac, x0[2], 1.0, nw.empty_jacobian_cache(2, jnp.float64), options)
     np.testing.assert_allclose(x[2], one, rtol=0, atol=1e-15)
