@@ -18,7 +18,16 @@ import sys
 import time
 
 from lib import cli
-from lib.output import child_env, child_result, log, md_table, python_child, results_path, run_meta, write_json
+from lib.output import (
+    child_env,
+    child_result,
+    log,
+    md_table,
+    python_child,
+    results_path,
+    run_meta,
+    write_json,
+)
 
 CHILD = r"""
 import sys, time

@@ -299,30 +299,36 @@ def _refreshed(jac_fn, params, st: NewtonState) -> JacobianCache:
         b_refresh, b_x, b_params, b_consts, b_cache = batched
         refresh = refresh if b_refresh else jnp.broadcast_to(refresh, (size,))
         cache = jax.tree_util.tree_map(lambda c, b: c if b else jnp.broadcast_to(c, (size,) + c.shape), cache, b_cache)
-        if jax.default_backend() == "cpu":
-            def lane(tree, flags, i):
-                return jax.tree_util.tree_map(lambda a, b: a[i] if b else a, tree, flags)
-
-            def one(i, cache):
-                def update():
-                    new = fresh(lane(x, b_x, i), lane(params, b_params, i), lane(consts, b_consts, i))
-                    return jax.tree_util.tree_map(lambda c, n: c.at[i].set(n), cache, new)
-
-                return jax.lax.cond(refresh[i], update, lambda: cache)
-
-            cache = jax.lax.fori_loop(0, size, one, cache)
-        else:
-            axes = jax.tree_util.tree_map(lambda b: 0 if b else None, (b_x, b_params, b_consts))
-            cache = jax.lax.cond(
-                jnp.any(refresh),
-                lambda: jax.tree_util.tree_map(
-                    lambda n, c: jnp.where(refresh.reshape((size,) + (1,) * (c.ndim - 1)), n, c),
-                    jax.vmap(fresh, in_axes=axes)(x, params, consts), cache),
-                lambda: cache,
-            )
-        return cache, jax.tree_util.tree_map(lambda _: True, cache)
+        update = _refresh_one_by_one if jax.default_backend() == "cpu" else _refresh_all_at_once
+        new = update(fresh, refresh, (x, params, consts), (b_x, b_params, b_consts), cache)
+        return new, jax.tree_util.tree_map(lambda _: True, new)
 
     return refreshed(st.refresh, st.x, params, list(closed.consts), st.cache)
+
+
+def _refresh_one_by_one(fresh, refresh, args, batched, cache):
+    """On a CPU: a loop over the trajectories, each a ``lax.cond`` on its own flag (``args``:
+    the arguments of ``fresh``, ``batched`` their flags)."""
+
+    def one(i, cache):
+        def update():
+            lane = jax.tree_util.tree_map(lambda a, b: a[i] if b else a, args, batched)
+            return jax.tree_util.tree_map(lambda c, n: c.at[i].set(n), cache, fresh(*lane))
+
+        return jax.lax.cond(refresh[i], update, lambda: cache)
+
+    return jax.lax.fori_loop(0, refresh.shape[0], one, cache)
+
+
+def _refresh_all_at_once(fresh, refresh, args, batched, cache):
+    """Elsewhere: the whole batch when one trajectory asks; the others keep their caches."""
+
+    def update():
+        new = jax.vmap(fresh, in_axes=jax.tree_util.tree_map(lambda b: 0 if b else None, batched))(*args)
+        keep = lambda n, c: jnp.where(refresh.reshape(refresh.shape + (1,) * (c.ndim - 1)), n, c)
+        return jax.tree_util.tree_map(keep, new, cache)
+
+    return jax.lax.cond(jnp.any(refresh), update, lambda: cache)
 
 
 def newton_done(st: NewtonState):
