@@ -82,6 +82,60 @@ def test_stability_limited_steps_are_caught_on_the_long_sleigh():
     assert sol.stats["n_roundoff_limited"] == 0 and "Warning" not in sol.message
 
 
+def _sleigh_at_rest_turning(ex, omega):
+    """The sleigh moving straight at unit speed along x, with angular velocity ``omega`` (p
+    consistent with the blade's constraint): the turning mode that the constraint damps."""
+    a = ex.args
+    return jnp.zeros(3), jnp.asarray([a.m, a.m * a.a * omega, a.I * omega])
+
+
+def test_a_step_beyond_the_damped_modes_reach_is_not_divided_by_richardsons_ratio():
+    """One error-controlled step of h = 118 (s = 5) from straight motion with a turning mode of
+    1e-10: the exact flow damps it (e^(-54)), the method, far outside its resolved range, amplifies
+    it: the kept half steps err by 1.5e-7 (the whole step by 6e-8). Richardson's divisor 2^8 - 1
+    assumes the asymptotic ratio of the two errors and gave 6.7e-10, 226 x too small; the estimate
+    sees that the error lies along a mode with |h μ| far beyond ``richardson_radius`` and keeps the
+    whole difference (1.1 x the true error)."""
+    ex = get_example("sleigh")
+    q0, p0 = _sleigh_at_rest_turning(ex, 1e-10)
+    t0, h, s = 0.0, 118.0, 5
+    method = L.LobattoIIIAIIIB(stages=s, lam_start="consistent")
+    lam0 = L.consistent_lambda(ex.problem, t0, q0, p0, jnp.zeros(1), args=ex.args)
+    q1, p1, _, info, _ = jax.jit(lambda: StepDoubling(method).step(ex.problem, t0, q0, p0, lam0, h, ex.args))()
+    step = jax.jit(lambda t, q, p, lam, hh: method.step(ex.problem, t, q, p, lam, hh, ex.args)[:3])
+
+    def fine(k, c):  # 2000 steps of the method: the exact flow to round-off
+        q, p, lam = c
+        t = t0 + k * h / 2000
+        return step(t, q, p, L.consistent_lambda(ex.problem, t, q, p, lam, args=ex.args), h / 2000)
+
+    qf, pf, _ = jax.jit(lambda: jax.lax.fori_loop(0, 2000, fine, (q0, p0, lam0)))()
+    true = np.max(np.abs(np.concatenate([q1 - qf, p1 - pf])))
+    estimate = np.max(np.abs(info.error))
+    assert int(info.result) == 0 and true > 1e-8, true  # the step is bad ...
+    assert 0.5 < estimate / true < 3, (estimate, true)  # ... and the estimate says so
+
+
+@pytest.mark.parametrize("s", [4, 5, 6])
+def test_every_step_point_is_faithful_on_a_sleigh_that_settles(s):
+    """The sleigh started turning (ω = 0.1) settles into straight motion; at rtol = 1e-8 its steps
+    grow to hundreds of time units, far beyond the turning mode's resolved range. Dividing every
+    difference by Richardson's ratio, the error at step points reached 85 x rtol (s = 5) and
+    7.7 x at the end (s = 4); over s = 3..6, rtol 1e-6..1e-10 and three initial turns 11 of 36
+    runs exceeded 30 x (up to 251 x). With the estimate aware of its range: at most 0.6 x,
+    with as many steps (28 for s = 5). The reference: 20,000 constant steps of s = 6."""
+    ex = get_example("sleigh")
+    q0, p0 = _sleigh_at_rest_turning(ex, 0.1)
+    span = (0.0, 1000.0)
+    sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=s), span, q0, p0, args=ex.args, rtol=1e-8, atol=1e-8)
+    ref = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=6), span, q0, p0, args=ex.args, n_steps=20000,
+                  t_eval=sol.t)
+    y, y_ref = np.hstack([sol.q, sol.p]), np.hstack([ref.q, ref.p])
+    err = np.max(np.abs(y - y_ref) / (1 + np.abs(y_ref)))
+    assert sol.success and err < 3e-8, err
+    assert sol.stats["n_steps"] < 150  # the turning mode does not hold the steps at its stability limit
+
+
 def test_tight_tolerances_on_long_runs_do_not_collapse_the_steps():
     """The error per unit step of T = 1000 at rtol 1e-12 asks a step for less than its round-off;
     without the floor (ROUNDOFF_FLOOR) the step size fell to 2e-12 at t = 372 and the run failed

@@ -304,3 +304,43 @@ def test_not_a_jax_pytree():
     pair = lobatto_pair(3)
     leaves = jax.tree_util.tree_leaves(pair)
     assert len(leaves) == 1 and leaves[0] is pair
+
+
+@pytest.mark.parametrize("s", [2, 3, 4, 5, 6])
+def test_stability_function_is_the_diagonal_pade_approximant(s):
+    """Lobatto IIIA's R(z) is the (k, k) Padé approximant of e^z, k = s - 1:
+    ``P(z) / P(-z)`` with ``P(z) = Σ_j (2k-j)! k! / ((2k)! j! (k-j)!) z^j``; so |R(iy)| = 1 and
+    R(∞) = (-1)^(s-1)."""
+    from math import factorial
+
+    pair, k = lobatto_pair(s), s - 1
+    coef = [factorial(2 * k - j) * factorial(k) / (factorial(2 * k) * factorial(j) * factorial(k - j))
+            for j in range(k + 1)]
+    z = np.array([-7.0, -1.0, -0.1, 0.3 + 2j, 5j])
+    pade = np.polyval(coef[::-1], z) / np.polyval(coef[::-1], -z)
+    np.testing.assert_allclose(pair.stability(z), pade, rtol=1e-12)
+    np.testing.assert_allclose(np.abs(pair.stability(1j * np.linspace(0.1, 50, 30))), 1.0, rtol=1e-12)
+    assert abs(pair.stability(np.array([-1e9]))[0] - pair.r_infinity) < 1e-6
+
+
+@pytest.mark.parametrize("s", [2, 3, 4, 5, 6, 8])
+def test_richardson_radius_bounds_where_the_asymptotic_ratio_holds(s):
+    """Inside the radius the whole step's and the half steps' errors relate as 2^(2s-2) for damped
+    and oscillating linear modes alike (within a factor two); just outside it they do not."""
+    pair = lobatto_pair(s)
+    r = pair.richardson_radius
+    d0 = 2.0 ** (2 * s - 2) - 1.0
+
+    def ratio(z):
+        half = pair.stability(z / 2) ** 2
+        return np.abs((half - pair.stability(z)) / (half - np.exp(z)))
+
+    assert 2.0 < r < 10.0
+    inside = np.linspace(0.6, 0.99, 12) * r
+    for direction in (-1.0, 1j):
+        d = ratio(direction * inside)
+        resolved = np.abs(lobatto_pair(s).stability(direction * inside / 2) ** 2 - np.exp(direction * inside)) > 1e-9
+        assert np.all((d[resolved] > 0.5 * d0) & (d[resolved] < 2.0 * d0))
+    outside = min(ratio(-1.02 * r), ratio(1.02j * r))
+    assert outside < 0.55 * d0 or max(ratio(-1.02 * r), ratio(1.02j * r)) > 1.9 * d0
+    assert lobatto_pair(s + 1).richardson_radius > r  # higher order resolves more

@@ -412,6 +412,44 @@ class LobattoPair:
         """
         return self.s
 
+    def stability(self, z):
+        """``R(z) = 1 + z bᵀ (I − zA)⁻¹ 1``, the stability function of Lobatto IIIA (z a complex
+        array)."""
+        z = np.asarray(z, complex)
+        flat = z.reshape(-1, 1, 1)
+        stages = np.linalg.solve(np.eye(self.s) - flat * self.a, np.ones((flat.shape[0], self.s, 1)))
+        return (1.0 + z.ravel() * (stages[:, :, 0] @ self.b)).reshape(z.shape)
+
+    @functools.cached_property
+    def richardson_radius(self) -> float:
+        r"""The largest r for which Richardson's divisor ``2^p − 1`` (p = 2s − 2) is within a factor
+        two of the true ratio for every linear mode ``y' = μ y`` with ``|hμ| ≤ r``, damped (μ real
+        negative) or oscillating (μ imaginary).
+
+        For such a mode, a whole step and two half steps err by ``R(z) − e^z`` and
+        ``R(z/2)² − e^z`` (z = hμ), so their difference is the half steps' error times
+
+            D(z) = (R(z/2)² − R(z)) / (R(z/2)² − e^z),
+
+        which tends to ``2^p − 1`` as z → 0 and leaves it once the step no longer resolves the
+        mode (``|R(z)| → 1`` where ``e^z → 0``, or the phase of ``R(iy)`` runs away). A property of
+        the tableau alone. Read-only.
+        """
+        d0 = 2.0 ** (2 * self.s - 2) - 1.0
+        r = np.linspace(0.05, 100.0, 4000)
+        radius = r[-1]
+        for direction in (-1.0, 1j):
+            z = direction * r
+            half = self.stability(z / 2.0) ** 2
+            err = half - np.exp(z)
+            ratio = np.abs((half - self.stability(z)) / np.where(err == 0, 1.0, err))
+            # below round-off the ratio is noise: the asymptotic regime, where it is d0
+            resolved = np.abs(err) <= 1e-11 * np.maximum(1.0, np.abs(np.exp(z)))
+            off = ~resolved & ((ratio < 0.5 * d0) | (ratio > 2.0 * d0))
+            if off.any():
+                radius = min(radius, r[np.argmax(off)])
+        return float(radius)
+
     @property
     def r_infinity(self) -> int:
         """``R(∞) = (-1)^(s-1)`` of IIIA: the factor by which a λ error is carried per step."""
