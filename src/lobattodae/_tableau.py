@@ -346,6 +346,12 @@ class LobattoPair:
         first use).
     r_infinity : int
         ``R(∞) = (-1)^(s-1)`` of IIIA, the factor by which a λ error is carried per step.
+    pade_coefficients : ndarray, shape (s,)
+        ``c_j`` of IIIA's stability function ``R(z) = P(z) / P(−z)``, ``P(z) = Σ_j c_j z^j``
+        (computed on first use).
+    richardson_radius : float
+        The largest ``|hμ|`` for which step doubling's Richardson ratio ``2^(2s−2)`` holds
+        within a factor two for damped and oscillating linear modes (computed on first use).
     """
 
     s: int
@@ -413,12 +419,35 @@ class LobattoPair:
         return self.s
 
     def stability(self, z):
-        """``R(z) = 1 + z bᵀ (I − zA)⁻¹ 1``, the stability function of Lobatto IIIA (z a complex
-        array)."""
+        """The stability function of Lobatto IIIA, ``R(z) = 1 + z bᵀ (I − zA)⁻¹ 1``.
+
+        Parameters
+        ----------
+        z : array_like
+            Complex (or real) arguments, any shape.
+
+        Returns
+        -------
+        ndarray
+            ``R(z)``, complex, of the shape of ``z``.
+        """
         z = np.asarray(z, complex)
         flat = z.reshape(-1, 1, 1)
         stages = np.linalg.solve(np.eye(self.s) - flat * self.a, np.ones((flat.shape[0], self.s, 1)))
         return (1.0 + z.ravel() * (stages[:, :, 0] @ self.b)).reshape(z.shape)
+
+    @functools.cached_property
+    def pade_coefficients(self) -> np.ndarray:
+        """``c_j`` of ``R(z) = P(z) / P(−z)``, ``P(z) = Σ_j c_j z^j``: Lobatto IIIA's stability
+        function is the (s−1, s−1) Padé approximant of e^z, ``c_j = (2k−j)! k! / ((2k)! j! (k−j)!)``
+        with k = s − 1 (lowest degree first). Read-only."""
+        from math import factorial
+
+        k = self.s - 1
+        out = np.array([factorial(2 * k - j) * factorial(k) / (factorial(2 * k) * factorial(j) * factorial(k - j))
+                        for j in range(k + 1)])
+        out.setflags(write=False)
+        return out
 
     @functools.cached_property
     def richardson_radius(self) -> float:
