@@ -19,12 +19,8 @@ Writes ``benchmarks/results/rejections.json``.
 
 from __future__ import annotations
 
-import json
-import os
-import sys
-
 from lib import cli
-from lib.output import child_env, child_result, md_table, python_child, results_path, run_meta, write_json
+from lib.output import md_table, results_path, rows_per_source, run_meta, write_json
 
 CHILD = r"""
 import sys, time, json
@@ -67,15 +63,7 @@ def main() -> None:
     parser.add_argument("--stages", nargs="+", type=int, default=[4, 5, 6])
     parser.add_argument("--tols", nargs="+", type=float, default=[1e-6, 1e-8, 1e-10])
     opts = cli.start(parser.parse_args())
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    runs = {}
-    for src in opts.src or ["src"]:
-        env = child_env(PYTHONPATH=os.pathsep.join([os.path.abspath(src), root, os.path.join(root, "benchmarks")]))
-        out = child_result(python_child(CHILD, *(json.dumps(x) for x in (opts.problems, opts.stages, opts.tols))),
-                           env, timeout=3600)
-        if "error" in out:
-            sys.exit(f"{src}: {out['error']}")
-        runs[src] = out["rows"]
+    runs = rows_per_source(CHILD, [opts.problems, opts.stages, opts.tols], opts.src)
     table = []
     keys = [(r["problem"], r["s"], r["tol"]) for r in next(iter(runs.values()))]
     for i, (name, s, tol) in enumerate(keys):

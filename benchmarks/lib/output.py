@@ -241,3 +241,19 @@ def child_result(cmd: list[str], env: dict, timeout: float = 3600.0) -> dict:
 def python_child(code: str, *argv: str) -> list[str]:
     """The command that runs ``code`` in a fresh interpreter with ``argv``."""
     return [sys.executable, "-c", code, *argv]
+
+
+def rows_per_source(code: str, args: list, sources: list[str] | None, timeout: float = 3600.0) -> dict:
+    """Runs ``code`` once per source tree (``--src`` directories; default ``src``), each in a fresh
+    process with that tree's lobattodae, the repository and ``lib`` first on ``PYTHONPATH`` and
+    ``args`` as JSON arguments; ``code`` prints ``{"rows": [...]}`` with :func:`print_result`.
+    Returns ``{source: rows}``; a failing tree ends the script, naming it."""
+    root = os.path.dirname(BENCHMARKS)
+    runs = {}
+    for src in sources or ["src"]:
+        env = child_env(PYTHONPATH=os.pathsep.join([os.path.abspath(src), root, BENCHMARKS]))
+        out = child_result(python_child(code, *(json.dumps(x) for x in args)), env, timeout=timeout)
+        if "error" in out:
+            sys.exit(f"{src}: {out['error']}")
+        runs[src] = out["rows"]
+    return runs
