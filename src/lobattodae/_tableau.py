@@ -472,9 +472,10 @@ class LobattoPair:
             half = self.stability(z / 2.0) ** 2
             err = half - np.exp(z)
             ratio = np.abs((half - self.stability(z)) / np.where(err == 0, 1.0, err))
-            # below round-off the ratio is noise: the asymptotic regime, where it is d0
-            resolved = np.abs(err) <= 1e-11 * np.maximum(1.0, np.abs(np.exp(z)))
-            off = ~resolved & ((ratio < 0.5 * d0) | (ratio > 2.0 * d0))
+            # where the half steps' error is at round-off the computed ratio is noise: that is the
+            # asymptotic regime, where the ratio is d0
+            noise = np.abs(err) <= 1e-11 * np.maximum(1.0, np.abs(np.exp(z)))
+            off = ~noise & ((ratio < 0.5 * d0) | (ratio > 2.0 * d0))
             if off.any():
                 radius = min(radius, r[np.argmax(off)])
         return float(radius)
