@@ -60,7 +60,7 @@ class TestProblem:
         ``"qp"`` (q and p compared, the default) or ``"q"`` (q only).
     long, stiff : bool
         ``long``: the interval is at least 1000 long; ``stiff``: the problem has fast
-        decaying modes (step sizes far above their time scale are of interest).
+        modes, decaying or oscillating (step sizes far above their time scale are of interest).
     reference : callable or None
         ``reference(t) -> (q, p)`` for closed forms (any t); None for tabulated references.
     """
