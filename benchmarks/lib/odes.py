@@ -492,6 +492,13 @@ def testset_ode(entry) -> ReducedODE:
         ode = ReducedODE("fekete", n, problem_module.index1_rhs, jax_ode.rhs_jax,
                          "y = (x, v), λ from the hidden constraint d/dt(x_i·v_i) = 0 in closed form: NumPy "
                          "(vectorised over the 190 pairs) from the test set's fekete.f; JAX from the problem's f, g, φ")
+    elif entry.name == "crank":
+        from testset import crank as problem_module
+
+        jax_ode = hidden_constraint(setup.problem, setup.args, n, m)
+        ode = ReducedODE("crank", n, problem_module.index1_rhs, jax_ode.rhs_jax,
+                         "y = (q, v), v' and λ from [M, Gᵀ; G, 0] with the differentiated velocity constraint: "
+                         "NumPy from the test set's crank.f (the reference's own ODE); JAX from the problem's f, g, φ")
     elif entry.name in ("knife-edge", "sleigh"):
         ode = reduced_ode(entry.name, setup.args)
     elif entry.name in ("servo-sleigh", "servo-sleigh-rest"):
