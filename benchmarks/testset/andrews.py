@@ -42,6 +42,7 @@ import numpy as np
 
 import lobattodae as L
 
+from ._index1 import end_state, kkt_acceleration
 from ._types import FastTest, Setup, TestProblem
 
 # ----------------------------------------------------------------------------- parameters
@@ -234,24 +235,15 @@ def index1_rhs(t, y):
     the second derivative of g(q) = 0 (its q-derivative term by a complex step, exact to
     round-off because G is analytic)."""
     q, w = y[:7], y[7:]
-    G = constraint_jacobian(q)
     curv = constraint_jacobian(q + 1e-30j * w).imag @ w / 1e-30
-    K = np.zeros((13, 13))
-    K[:7, :7], K[:7, 7:], K[7:, :7] = mass_matrix(q), G.T, G
-    acc = np.linalg.solve(K, np.concatenate([forces(q, w), -curv]))[:7]
-    return np.concatenate([w, acc])
+    return np.concatenate([w, kkt_acceleration(mass_matrix(q), constraint_jacobian(q), forces(q, w), curv)])
 
 
 def scipy_reference(method="DOP853", tol=1e-14):
     """q(0.03), q'(0.03) of :func:`index1_rhs` by ``scipy.integrate.solve_ivp`` (an independent
     check of the published reference; the drift from g = 0 stays below 1e-14 here)."""
-    from scipy.integrate import solve_ivp
-
-    sol = solve_ivp(index1_rhs, (0.0, T_END), np.concatenate([Q0, np.zeros(7)]), method=method,
-                    rtol=tol, atol=tol)
-    if not sol.success:
-        raise RuntimeError(sol.message)
-    return sol.y[:7, -1], sol.y[7:, -1]
+    y = end_state(index1_rhs, np.concatenate([Q0, np.zeros(7)]), T_END, method, tol)
+    return y[:7], y[7:]
 
 
 @functools.cache

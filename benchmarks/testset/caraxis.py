@@ -50,6 +50,7 @@ import numpy as np
 
 import lobattodae as L
 
+from ._index1 import end_state, kkt_acceleration
 from ._types import FastTest, Setup, TestProblem
 
 PARAMS = dict(eps=1e-2, M=10.0, L=1.0, L0=0.5, r=0.1, w=10.0, g=1.0)
@@ -148,22 +149,15 @@ def index1_rhs(t, y, P=PARAMS):
     h = 1e-30
     rate = lambda tt, qq: constraint_rate(tt, qq, P) + constraint_jacobian(tt, qq, P) @ u  # noqa: E731
     curv = rate(t + 1j * h, q + 1j * h * u).imag / h
-    G = constraint_jacobian(t, q, P)
-    K = np.zeros((6, 6))
-    K[:4, :4], K[:4, 4:], K[4:, :4] = mass(P) * np.eye(4), -G.T, G
-    sol = np.linalg.solve(K, np.concatenate([forces(t, q, P), -curv]))
-    return np.concatenate([u, sol[:4]])
+    acc = kkt_acceleration(mass(P) * np.eye(4), constraint_jacobian(t, q, P), forces(t, q, P), curv)
+    return np.concatenate([u, acc])
 
 
 def scipy_reference(method="DOP853", tol=1e-13):
     """q(3), u(3) of :func:`index1_rhs` by ``scipy.integrate.solve_ivp``: an independent check of
     the published reference."""
-    from scipy.integrate import solve_ivp
-
-    sol = solve_ivp(index1_rhs, (0.0, T_END), np.concatenate([Q0, U0]), method=method, rtol=tol, atol=tol)
-    if not sol.success:
-        raise RuntimeError(sol.message)
-    return sol.y[:4, -1], sol.y[4:, -1]
+    y = end_state(index1_rhs, np.concatenate([Q0, U0]), T_END, method, tol)
+    return y[:4], y[4:]
 
 
 @functools.cache

@@ -64,6 +64,7 @@ import numpy as np
 
 import lobattodae as L
 
+from ._index1 import end_state, kkt_acceleration
 from ._types import FastTest, Setup, TestProblem
 
 # ----------------------------------------------------------------------------- parameters
@@ -238,24 +239,16 @@ def index1_rhs(t, y):
     the derivative of G(q) v = (0, 0, Ω) (its q-derivative by a complex step, exact to
     round-off: G is analytic)."""
     q, v = y[:7], y[7:]
-    G = constraint_jacobian(q)
     curv = constraint_jacobian(q + 1e-30j * v).imag @ v / 1e-30
-    K = np.zeros((10, 10))
-    K[:7, :7], K[:7, 7:], K[7:, :7] = mass_matrix(q), G.T, G
-    acc = np.linalg.solve(K, np.concatenate([forces(q, v), -curv]))[:7]
-    return np.concatenate([v, acc])
+    return np.concatenate([v, kkt_acceleration(mass_matrix(q), constraint_jacobian(q), forces(q, v), curv)])
 
 
 def scipy_reference(method="DOP853", tol=1e-14, projected=True):
     """q(0.1), v(0.1) of :func:`index1_rhs` by ``scipy.integrate.solve_ivp`` from the test set's
     initial values (``projected``: after :func:`consistent_initial_values`)."""
-    from scipy.integrate import solve_ivp
-
     q0, v0 = consistent_initial_values() if projected else (np.array(Q0), np.array(V0))
-    sol = solve_ivp(index1_rhs, (0.0, T_END), np.concatenate([q0, v0]), method=method, rtol=tol, atol=tol)
-    if not sol.success:
-        raise RuntimeError(sol.message)
-    return sol.y[:7, -1], sol.y[7:, -1]
+    y = end_state(index1_rhs, np.concatenate([q0, v0]), T_END, method, tol)
+    return y[:7], y[7:]
 
 
 @functools.cache
