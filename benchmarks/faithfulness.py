@@ -5,7 +5,10 @@ For every problem of ``benchmarks/testset`` and every (s, rtol) of the grid, ``s
 ``testset.error``) is compared with ``max(rtol, the reference's accuracy)``. The contract:
 error ≤ 30 × that on every setting, a log-log slope of error against rtol in [0.8, 1.2]
 (fitted where the error is above 30 × the reference's accuracy), and no run that reports
-success with an error above 1000 × rtol.
+success with an error above 1000 × rtol. A run "says so" when it cannot meet its tolerance:
+a run whose rtol asks its steps for less than their round-off warns (``roundoff_warned``,
+``lobattodae.solve``'s test on ``stats["n_roundoff_limited"]``); its error above 30 × is
+listed apart, not as a violation (above 1000 × rtol it is one all the same).
 
     python benchmarks/faithfulness.py                       # the whole grid (slow)
     python benchmarks/faithfulness.py --problems andrews --stages 4 5 --rtols 1e-6 1e-8
@@ -26,6 +29,7 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # the tests import this file as benchmarks.*
 
 import lobattodae as L  # noqa: E402
+from lobattodae._controllers import roundoff_may_exceed  # noqa: E402
 from benchmarks.lib import cli  # noqa: E402
 from benchmarks.lib.output import log, pyplot, read_json, results_path, save_figure, write_json  # noqa: E402
 from benchmarks.testset import PROBLEMS, error  # noqa: E402
@@ -61,6 +65,8 @@ def run_one(entry, s: int, rtol: float, max_steps: int = 2_000_000) -> dict:
         "status": int(sol.result), "success": bool(sol.success), "message": sol.message,
         "n_steps": int(sol.stats["n_steps"]), "n_rejected": int(sol.stats["n_rejected"]),
         "max_constraint_residual": float(sol.stats["max_constraint_residual"]), "seconds": seconds,
+        "n_roundoff_limited": int(sol.stats["n_roundoff_limited"]),
+        "roundoff_warned": bool(roundoff_may_exceed(int(sol.stats["n_roundoff_limited"]), rtol)),
     }
 
 
@@ -73,10 +79,12 @@ def slope(rows: list[dict], ref_accuracy: float) -> float:
 
 
 def verdict(rows: list[dict]) -> list[str]:
-    """The contract's violations among ``rows`` (one problem, one s)."""
+    """The contract's violations among ``rows``: errors above 30 × in runs that did not warn
+    (rows without ``roundoff_warned``, from before it was recorded, count as unwarned), and
+    success with an error above 1000 × rtol in any run."""
     bad = []
     for r in rows:
-        if r["success"] and r["ratio"] > FAITHFUL:
+        if r["success"] and r["ratio"] > FAITHFUL and not r.get("roundoff_warned", False):
             bad.append(f"{r['problem']} s={r['s']} rtol={r['rtol']:g}: error {r['error']:.2e} = {r['ratio']:.0f} x")
         if r["success"] and r["error"] > NEVER * r["rtol"] and r["ratio"] > FAITHFUL:
             bad.append(f"{r['problem']} s={r['s']} rtol={r['rtol']:g}: SUCCESS with error > {NEVER:g} x rtol")
@@ -101,6 +109,18 @@ def grid(problems, stages, rtols) -> tuple[list[dict], dict]:
             slopes[f"{name} s={s}"] = slope(mine, entry.ref_accuracy)
             log(f"{name:>18} s={s} slope {slopes[f'{name} s={s}']:.2f}")
     return rows, slopes
+
+
+def summary(rows: list[dict]) -> str:
+    """The largest ratio among the runs that did not warn and among those that did."""
+    lines = []
+    for warned in (False, True):
+        mine = [r for r in rows if r.get("roundoff_warned", False) == warned and math.isfinite(r["ratio"])]
+        if mine:
+            top = max(mine, key=lambda r: r["ratio"])
+            lines.append(f"{len(mine)} runs {'warned (round-off)' if warned else 'did not warn'}: largest "
+                         f"{top['ratio']:.2f} x ({top['problem']} s={top['s']} rtol={top['rtol']:g})")
+    return "\n".join(lines)
 
 
 def merge(old: list[dict], new: list[dict]) -> tuple[list[dict], dict]:
@@ -160,6 +180,7 @@ def main(argv=None):
     log(f"\n{len(rows)} runs, {len(bad)} violations")
     for line in bad:
         log("  " + line)
+    log(summary(rows))
     return 0 if not bad else 1
 
 
