@@ -289,6 +289,30 @@ def test_bad_position_constraints_are_refused_with_the_fix(pendulum):
         L.solve(good, method, (0.0, 0.1), q_off, p_off, n_steps=2, args=pe.args)
 
 
+def test_project_initial_moves_q0_onto_the_position_constraint(pendulum):
+    """project_initial=True puts an off-constraint q0 on ψ = 0 to round-off, along ψ_qᵀ (here
+    f = p/m, so D_p f ψ_qᵀ ∝ q: radially, as the steps' projection moves their end points), then
+    p0 onto φ = 0; from 1e-3 and from 1e-9 off alike, and a q0 with no nearby solution is
+    refused with the reason."""
+    pe = pendulum
+    model = _hand_pendulum(lambda t, q, a: jnp.atleast_1d(jnp.sum(q**2) - a["l"] ** 2))
+    ell = pe.args["l"]
+    for off in (1e-3, 1e-9):
+        q_off = (1.0 + off) * pe.q0
+        sol = L.solve(model, L.LobattoIIIAIIIB(stages=3), (0.0, 0.1), q_off, pe.p0, n_steps=4, args=pe.args,
+                      project_initial=True)
+        q0 = np.asarray(sol.q[0])
+        assert abs(np.sum(q0**2) - ell**2) <= 4e-16 * ell**2
+        np.testing.assert_allclose(q0, pe.q0 * ell / np.linalg.norm(pe.q0), rtol=0, atol=1e-15)
+        assert abs(float(np.dot(q0, np.asarray(sol.p[0])))) <= 1e-15
+    q, p, _ = L.validate_initial_values(model, 0.0, 1.001 * pe.q0, pe.p0, args=pe.args, project=True)
+    np.testing.assert_allclose(np.sum(q**2), ell**2, rtol=1e-15)
+    # no q with |q| = ℓ near the origin along a radial step from 0: refused, not NaN
+    with pytest.raises(InconsistentInitialValuesError, match=r"projecting q0 onto the holonomic constraint failed"):
+        L.solve(model, L.LobattoIIIAIIIB(stages=3), (0.0, 0.1), np.zeros(2), np.zeros(2), n_steps=2,
+                args=pe.args, project_initial=True)
+
+
 # ----------------------------------------------------------------------------- dense output
 def test_projected_dense_output_keeps_psi_phi_and_the_accuracy(pendulum):
     """``sol.sol(t, project=True)`` puts interpolated values on ψ = 0 and φ = 0 (round-off, where

@@ -154,7 +154,9 @@ def solve(
         ends early at ``max_steps`` or on Ctrl-C returns its prefix either way.
     project_initial : bool
         Replace ``p0`` by its least-squares projection onto the constraint
-        {p : φ(t0, q0, p) = 0} (always, to round-off) instead of rejecting inconsistent values.
+        {p : φ(t0, q0, p) = 0} (always, to round-off) instead of rejecting inconsistent values;
+        with a ``position_constraint``, ``q0`` is first moved onto ψ(t0, q) = 0 (as the steps'
+        projection moves their end points; for a mechanical system in the kinetic metric).
     chunk_size : int, optional
         Step attempts per compiled chunk (default 2048); progress,
         Ctrl-C and checkpoints act between chunks.

@@ -26,6 +26,7 @@ from ._errors import (
     SingularConstraintError,
 )
 from ._problem import _hidden_constraint_and_jacobian, projection_step
+from ._projection import project_positions
 from ._problem_trace import check_args, function_error, length_hint, output_signature, short
 
 __all__ = ["validate_initial_values", "check_float64", "check_args", "check_tolerance_attainable"]
@@ -33,6 +34,8 @@ __all__ = ["validate_initial_values", "check_float64", "check_args", "check_tole
 #: Default tolerance for ``‖φ(t0, q0, p0)‖∞`` and for the hidden-constraint residual of a
 #: given λ0, relative to the size of the data.
 CONSISTENCY_TOL = 1e-10
+#: Calls of the position projection (each three Newton steps) that project_initial may take.
+_POSITION_PROJECTIONS = 5
 #: ``D_pφ D_λg`` counts as singular when its reciprocal condition number is below this.
 SINGULAR_RCOND = 1e-12
 _LAMBDA_NEWTON_ITERATIONS = 20
@@ -134,9 +137,44 @@ def _check_position_constraint(problem, t0, q0, args, tol, scale) -> None:
     if not norm <= tol * scale:
         raise InconsistentInitialValuesError(
             f"the initial position violates the holonomic constraint: ‖ψ(t0, q0)‖∞ = {norm:.3e} > "
-            f"{tol:.1e}·(1 + ‖q0‖∞ + ‖p0‖∞) (ψ = {psi0}). Fix q0 so that position_constraint(t0, q0, args) = 0 "
-            "(project_initial=True corrects p0 only)."
+            f"{tol:.1e}·(1 + ‖q0‖∞ + ‖p0‖∞) (ψ = {psi0}). Fix q0 so that position_constraint(t0, q0, args) = 0, "
+            "or pass project_initial=True to project q0 onto it."
         )
+
+
+@_compile.jit(static_argnums=0)
+def _projected_position(problem, t, q, p, args):
+    q1 = project_positions(problem, t, q, p, args)
+    return q1, problem.position_constraint(t, q1, args)
+
+
+def _project_positions_initial(problem, t0, q0, p0, args, tol):
+    """q0 moved onto ψ(t0, q) = 0 as the steps' projection moves their end points
+    (:func:`~lobattodae._projection.project_positions`: along D_p f ψ_qᵀ, for a mechanical
+    system the kinetic metric), repeated until the residual is at round-off, so that the result
+    does not depend on how close q0 already was."""
+    if getattr(problem, "position_constraint", None) is None:
+        return q0
+    eps = float(np.finfo(np.float64).eps)
+    q = q0
+    for _ in range(_POSITION_PROJECTIONS):
+        try:
+            q1, psi = (np.asarray(x) for x in _projected_position(problem, t0, q, p0, args))
+        except Exception as exc:  # re-raised with context: the user's function failed
+            raise function_error("position_constraint(t, q, args)", exc) from exc
+        if not np.all(np.isfinite(q1)):
+            break
+        q = q1
+        if float(np.max(np.abs(psi), initial=0.0)) <= 16 * eps * (1.0 + float(np.max(np.abs(q)))):
+            return q
+    psi = np.asarray(_position_residual(problem, t0, q, args))
+    norm = float(np.max(np.abs(psi), initial=0.0))
+    if not (np.all(np.isfinite(q)) and norm <= tol):
+        raise InconsistentInitialValuesError(
+            f"projecting q0 onto the holonomic constraint failed (remaining ‖ψ‖∞ = {norm:.3e}); check that "
+            "position_constraint(t0, q, args) = 0 has a solution near q0 and that q0 is close to it."
+        )
+    return q
 
 
 @_compile.jit(static_argnums=0)
@@ -176,7 +214,9 @@ def validate_initial_values(
     args : pytree, optional
     project : bool
         Replace ``p0`` by the nearest (least-squares) ``p`` with ``φ(t0, q0, p) = 0`` instead
-        of raising.
+        of raising; when the problem has a ``position_constraint``, first move ``q0`` onto
+        ``ψ(t0, q) = 0`` as the steps' projection moves their end points (along
+        ``D_p f ψ_qᵀ``: for a mechanical system the kinetic metric). Both to round-off.
     tol : float
         The consistency tolerance on ``‖φ‖∞`` and the hidden constraint.
 
@@ -239,6 +279,8 @@ def validate_and_residual(problem, t0, q0, p0, lam0=None, args=None, *, project=
     lam = np.zeros(m) if lam0 is None else lam0
 
     scale = 1.0 + float(np.max(np.abs(p0))) + float(np.max(np.abs(q0)))
+    if project:
+        q0 = _project_positions_initial(problem, t0j, q0, p0, args, tol * scale)
     _check_position_constraint(problem, t0j, q0, args, tol, scale)
     phi0, r, jac = (np.asarray(x) for x in _initial_quantities(problem, t0j, q0, p0, lam, args))
     _check_finite_at_start(phi0, r, jac, lam0 is not None)
