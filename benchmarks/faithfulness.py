@@ -50,7 +50,7 @@ MAX_WORK_LONG = {2: 1e-4, 3: 1e-10}
 MAX_WORK_STIFF = {2: 1e-4}
 
 
-def run_one(entry, s: int, rtol: float, max_steps: int = 2_000_000) -> dict:
+def run_one(entry, s: int, rtol: float) -> dict:
     setup = entry.build()
     t0, t1 = setup.t_span
     t_ref = [t for t in entry.t_ref if min(t0, t1) < t <= max(t0, t1)]
