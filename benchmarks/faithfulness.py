@@ -13,6 +13,7 @@ listed apart, not as a violation (above 1000 × rtol it is one all the same).
     python benchmarks/faithfulness.py                       # the whole grid (slow)
     python benchmarks/faithfulness.py --problems andrews --stages 4 5 --rtols 1e-6 1e-8
     python benchmarks/faithfulness.py --problems caraxis --merge   # into the stored results
+    python benchmarks/faithfulness.py --replot                     # the figure from the stored results
 
 Writes ``benchmarks/results/faithfulness.json`` and ``faithfulness.png``.
 """
@@ -148,7 +149,11 @@ def plot(rows, path):
         mine = [r for r in rows if r["problem"] == name]
         for s in sorted({r["s"] for r in mine}):
             rs = [r for r in mine if r["s"] == s and math.isfinite(r["error"])]
-            ax.loglog([r["rtol"] for r in rs], [r["error"] for r in rs], "o-", ms=3, label=f"s = {s}")
+            line, = ax.loglog([r["rtol"] for r in rs], [r["error"] for r in rs], "o-", ms=3, label=f"s = {s}")
+            warned = [r for r in rs if r.get("roundoff_warned", False)]
+            ax.loglog([r["rtol"] for r in warned], [r["error"] for r in warned], "o", ms=8, mfc="none",
+                      color=line.get_color())
+        ax.plot([], [], "o", ms=8, mfc="none", color="0.3", label="warned: rtol below the steps' round-off")
         lim = np.array([1e-13, 1e-3])
         ax.loglog(lim, lim, "k-", lw=0.8, label="error = rtol")
         ax.loglog(lim, FAITHFUL * lim, "r:", lw=1.0, label=f"{FAITHFUL:g} x rtol (the contract)")
@@ -169,7 +174,11 @@ def main(argv=None):
     ap.add_argument("--out", default=results_path("faithfulness"), help="the results' path without suffix")
     ap.add_argument("--merge", action="store_true",
                     help="merge into the existing results (rows of the same problem, s and rtol are replaced)")
+    ap.add_argument("--replot", action="store_true", help="only redraw the figure from the stored results")
     ns = cli.start(ap.parse_args(argv))
+    if ns.replot:
+        plot(read_json(ns.out + ".json")["rows"], ns.out + ".png")
+        return 0
     rows, slopes = grid(ns.problems, ns.stages, ns.rtols)
     if ns.merge and pathlib.Path(ns.out + ".json").exists():
         rows, slopes = merge(read_json(ns.out + ".json")["rows"], rows)
