@@ -63,6 +63,21 @@ def test_the_squeezer_stays_faithful_where_richardson_is_outside_its_range():
     assert r["ratio"] <= F.FAITHFUL, r
 
 
+def test_the_verdict_lists_warned_runs_apart_but_never_above_1000x():
+    """The contract as ``F.verdict`` reads it: above 30 x a run that did not warn is a violation,
+    one that warned of round-off is not (it said so), and above 1000 x rtol both are."""
+    row = dict(problem="p", s=4, rtol=1e-10, success=True)
+    ok = dict(row, error=2e-9, ratio=20.0, roundoff_warned=False)
+    unwarned = dict(row, error=5e-9, ratio=50.0, roundoff_warned=False)
+    warned = dict(row, error=5e-9, ratio=50.0, roundoff_warned=True)
+    legacy = dict(row, error=5e-9, ratio=50.0)  # stored before the flag: counts as unwarned
+    huge = dict(row, error=2e-7, ratio=2000.0, roundoff_warned=True)
+    assert F.verdict([ok, warned]) == []
+    assert len(F.verdict([unwarned])) == 1 and len(F.verdict([legacy])) == 1
+    assert [v for v in F.verdict([huge]) if "1000 x rtol" in v]
+    assert "did not warn: largest 50.00 x" in F.summary([ok, unwarned, warned])
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(PROBLEMS))
 def test_faithfulness_grid(name):
