@@ -43,7 +43,7 @@ API_SECTIONS = {
     "controllers": ["PIController", "ReversibleStepSize"],
     "problems": [
         "PartitionedDAE", "NonholonomicSystem", "MechanicalSystem", "consistent_lambda",
-        "hidden_constraint", "project_momenta", "validate_initial_values",
+        "hidden_constraint", "project_momenta", "validate_initial_values", "spd_solve",
     ],
     "methods": [
         "LobattoIIIAIIIB", "StepInfo", "StepperState", "LobattoPair", "lobatto_pair",

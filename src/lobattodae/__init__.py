@@ -33,6 +33,7 @@ from ._errors import (  # noqa: E402
     SolverError,
 )
 from ._validate import validate_initial_values  # noqa: E402
+from ._linalg import spd_solve  # noqa: E402
 from ._animation import animate  # noqa: E402
 from ._plotting import plot, plot_convergence, plot_solution  # noqa: E402
 from ._problem import (  # noqa: E402
@@ -139,5 +140,6 @@ __all__ = [
     "project_momenta",
     "set_cpu_threads",
     "solve",
+    "spd_solve",
     "validate_initial_values",
 ]
