@@ -187,9 +187,9 @@ class NonholonomicSystem(_HamiltonianMixin):
 class MechanicalSystem(_HamiltonianMixin):
     r"""A mechanical system ``H = ½ pᵀ M(q)⁻¹ p + V(q)`` with constraints ``μ(q) q' = 0``.
 
-    ``q' = M(q)⁻¹ p`` is computed by a linear solve without pivoting (written out column by
-    column for n ≤ 8, faster per step on CPU than a LAPACK call: see the
-    [benchmarks page](../benchmarks/index.md)), and
+    ``q' = M(q)⁻¹ p`` is computed by a linear solve without pivoting
+    (:func:`~lobattodae.spd_solve`: written out column by column for n ≤ 8, faster per step on
+    CPU than a LAPACK call: see the [benchmarks page](../benchmarks/index.md)), and
     ``D_p φ · D_λ g = μ M⁻¹ μᵀ``. ``M(q0)`` is checked to be symmetric positive definite
     when a solve starts.
 
