@@ -1,7 +1,8 @@
 """The stage equations (lobattodae._stage_equations): the structured stage Jacobian (per-stage
 blocks assembled from the coefficients) equals forward-mode autodiff of the whole stage
-residual, both Newton variants give the same solution, the residual vanishes at a converged
-step, the layout round-trips, and the predictor evaluated at times is exact on polynomials."""
+residual, the one by forward differences equals it to √ε, the three Newton variants give the
+same solution, the residual vanishes at a converged step, the layout round-trips, and the
+predictor evaluated at times is exact on polynomials."""
 
 import jax
 import jax.numpy as jnp
@@ -62,25 +63,56 @@ def test_structured_jacobian_equals_autodiff(name, s):
     scale = float(jnp.max(jnp.abs(jac_a)))
     np.testing.assert_allclose(jac_s, jac_a, rtol=0, atol=1e-14 * scale)
     assert float(jnp.max(jnp.abs(jac_a - jnp.eye(jac_a.shape[0])))) > 1e-3  # not trivially the identity
+    # forward differences: the same residual, the same matrix to about √ε (1.5e-8) relative
+    r_d, jac_d = jax.jit(lambda y: se.stage_jacobian_differences(ex.problem, method.pair, layout, y, params))(x)
+    np.testing.assert_allclose(r_d, r_s, rtol=0, atol=1e-14)
+    error = float(jnp.max(jnp.abs(jac_d - jac_a))) / scale
+    assert 0 < error < 1e-6, error
 
 
 @pytest.mark.parametrize("name", EXAMPLES)
-def test_structured_and_autodiff_newton_agree(name):
+def test_newton_matrices_agree(name):
+    """The three ways of making Newton's matrix converge to the same stages: the exact two with
+    the same iterations, the differences to round-off, with at most one more iteration a step."""
     ex = get_example(name)
     sols = {
         kind: L.solve(ex.problem, L.LobattoIIIAIIIB(stages=3, jacobian=kind), (0.0, 2.0), ex.q0, ex.p0,
                       n_steps=40, args=ex.args)
-        for kind in ("structured", "autodiff")
+        for kind in ("structured", "autodiff", "differences")
     }
-    a, b = sols["structured"], sols["autodiff"]
-    np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(a.p, b.p, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(a.lam, b.lam, rtol=0, atol=1e-10)
-    np.testing.assert_array_equal(a.stats["newton_iterations"], b.stats["newton_iterations"])
+    a = sols["structured"]
+    for kind in ("autodiff", "differences"):
+        b = sols[kind]
+        np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.p, b.p, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.lam, b.lam, rtol=0, atol=1e-10)
+    np.testing.assert_array_equal(a.stats["newton_iterations"], sols["autodiff"].stats["newton_iterations"])
+    extra = np.asarray(sols["differences"].stats["newton_iterations"]) - np.asarray(a.stats["newton_iterations"])
+    assert np.max(np.abs(extra)) <= 1, extra
+
+
+def test_forward_differences():
+    """Columns (fun(z + δ_j e_j) − fun(z)) / δ_j with δ_j = √ε max(1, |z_j|): an affine map's
+    matrix up to round-off, a curved map's derivative to about √ε, also at z_j = 0 and for
+    large |z_j|."""
+    a = jnp.asarray([[2.0, -1.0, 0.5], [0.0, 3.0, 10.0]])
+    z = jnp.asarray([0.0, 1.5, -2e3])
+    value, jac = se.forward_differences(lambda y: a @ y + 1.0, z)
+    np.testing.assert_allclose(value, a @ z + 1.0, rtol=1e-15)
+    np.testing.assert_allclose(jac, a, rtol=0, atol=1e-5)
+
+    def curved(y):
+        return jnp.stack([jnp.sin(y[0]) * y[1], jnp.exp(y[1] / 3), 1e-3 * y[2] ** 2])
+
+    value, jac = se.forward_differences(curved, z)
+    exact = jax.jacfwd(curved)(z)
+    np.testing.assert_allclose(value, curved(z), rtol=1e-15)
+    np.testing.assert_allclose(jac, exact, rtol=3e-8, atol=3e-8)
+    assert float(jnp.max(jnp.abs(jac - exact))) > 0  # differences, not derivatives
 
 
 def test_bad_jacobian_option():
-    with pytest.raises(ValueError, match="jacobian must be 'structured'"):
+    with pytest.raises(ValueError, match="jacobian must be 'differences'"):
         L.LobattoIIIAIIIB(stages=3, jacobian="numeric")
 
 

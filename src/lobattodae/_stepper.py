@@ -29,6 +29,12 @@ RETRY_FACTOR = 0.25
 
 #: The start-multiplier policies; see :class:`LobattoIIIAIIIB` (``lam_start``).
 LAM_START_MODES = ("auto", "previous", "consistent")
+#: Simplified Newton's matrix, by the option ``jacobian`` of :class:`LobattoIIIAIIIB`.
+NEWTON_JACOBIANS = {
+    "differences": se.stage_jacobian_differences,
+    "structured": se.stage_jacobian,
+    "autodiff": se.stage_jacobian_autodiff,
+}
 #: A reused Jacobian is refreshed when the step size changed by more than this fraction.
 H_CHANGE_REFRESH = 0.2
 #: The λ drift monitor compares the drift ‖λ_n − λ(t_n, q_n, p_n)‖∞ with its largest value in
@@ -188,9 +194,15 @@ class LobattoIIIAIIIB:
           mode does. It keeps the symmetric scheme where λ errors stay bounded (reversible
           problems) and bounds them where they grow; resets are counted
           (``stats["lam_resets"]`` in :func:`~lobattodae.solve`).
-    jacobian : {"structured", "autodiff"}
-        ``"structured"`` (default) assembles Newton's matrix from per-stage blocks of f, g and
-        φ; ``"autodiff"`` applies ``jax.jacfwd`` to the whole stage residual (same matrix).
+    jacobian : {"differences", "structured", "autodiff"}
+        How simplified Newton's matrix is made. ``"differences"`` (default) assembles it from
+        per-stage blocks of f, g and φ by forward differences (as RADAU5 does); ``"structured"``
+        from the same blocks by forward-mode autodiff; ``"autodiff"`` applies ``jax.jacfwd``
+        to the whole stage residual (the same matrix as ``"structured"``). The matrix decides
+        how fast Newton contracts, not the root (the residual alone decides where it stops),
+        so the steps agree to round-off; differences compile faster and refresh faster on a
+        CPU (no derivative code of the problem's functions in the step). The derivatives of a
+        step (``jax.grad``, ``jvp``) always use the exact Jacobian of the root.
     extrapolate : bool
         Start Newton from the previous step's stage polynomials (default) or from constant
         stages. Extrapolation is switched off automatically for large s, where it is
@@ -203,7 +215,7 @@ class LobattoIIIAIIIB:
     reuse_jacobian: bool = True
     extrapolate: bool = True
     lam_start: str = "auto"
-    jacobian: str = "structured"
+    jacobian: str = "differences"
 
     def __post_init__(self):
         lobatto_pair(self.stages)  # validates s
@@ -214,10 +226,11 @@ class LobattoIIIAIIIB:
                 "constraint when λ drifts out of its band), 'previous' (the paper's scheme, Λ_1 = λ_n) "
                 f"or 'consistent' (Λ_1 from the hidden constraint at every step); got {self.lam_start!r}."
             )
-        if self.jacobian not in ("structured", "autodiff"):
+        if self.jacobian not in NEWTON_JACOBIANS:
             raise ValueError(
-                f"jacobian must be 'structured' (per-stage blocks, the default) or 'autodiff' "
-                f"(forward-mode through the whole stage residual); got {self.jacobian!r}."
+                "jacobian must be 'differences' (per-stage blocks by forward differences, the default), "
+                "'structured' (per-stage blocks by forward-mode autodiff) or 'autodiff' (forward-mode "
+                f"through the whole stage residual); got {self.jacobian!r}."
             )
         if not isinstance(self.extrapolate, bool):
             raise ValueError(f"extrapolate must be True or False; got {self.extrapolate!r}.")
@@ -426,11 +439,12 @@ class LobattoIIIAIIIB:
 
         x0, plain = self._guess(layout, params, state.history)
         residual = functools.partial(se.stage_residual, problem, pair, layout)
-        jac_fn = se.stage_jacobian if self.jacobian == "structured" else se.stage_jacobian_autodiff
         h_ok = jnp.abs(h - state.h_jacobian) <= H_CHANGE_REFRESH * jnp.abs(h)
         cache = state.jacobian._replace(valid=jnp.logical_and(state.jacobian.valid, h_ok))
-        jacobian = functools.partial(jac_fn, problem, pair, layout)
-        x, ninfo, cache = newton_solve(residual, jacobian, x0, params, cache, self.newton)
+        newton_matrix = functools.partial(NEWTON_JACOBIANS[self.jacobian], problem, pair, layout)
+        x, ninfo, cache = newton_solve(residual, newton_matrix, x0, params, cache, self.newton)
+        exact = se.stage_jacobian_autodiff if self.jacobian == "autodiff" else se.stage_jacobian
+        jacobian = functools.partial(exact, problem, pair, layout)
         h_jac = jnp.where(ninfo.n_jacobians > 0, h, state.h_jacobian)
         position_constraint = getattr(problem, "position_constraint", None) is not None  # static
 
