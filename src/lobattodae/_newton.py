@@ -39,9 +39,14 @@ REFRESH_PREDICTED = 8.0
 REFRESH_ITERATIONS = 12
 #: A contraction rate above THETA_STAGNATION with an increment below STAGNATION_LEVEL·tol means,
 #: with a fresh Jacobian, that the iterates are dominated by round-off: they are accepted. A
-#: reused Jacobian contracts slowly for its own reasons: it must get below ROUNDOFF_LEVEL·tol.
+#: reused Jacobian contracts slowly for its own reasons: it must get below ROUNDOFF_LEVEL·tol,
+#: or below FLOOR_FACTOR times the level at which the last solve with a fresh Jacobian ended
+#: (the problem's own round-off, measured: where momenta or multipliers are large, as in models
+#: in physical units, it lies well above ROUNDOFF_LEVEL·tol; Whipple bicycle: 20-40), never
+#: above STAGNATION_LEVEL·tol.
 THETA_STAGNATION = 0.9
 STAGNATION_LEVEL = 1e3
+FLOOR_FACTOR = 4.0
 #: Scaled increments up to this size are round-off noise (their ratios say nothing about the
 #: contraction of the iteration).
 ROUNDOFF_LEVEL = 10.0
@@ -82,6 +87,7 @@ class JacobianCache(NamedTuple):
 
     inverse: jax.Array  # (N * N,), row-major
     valid: jax.Array  # bool scalar
+    floor: jax.Array  # the scaled increment at which the last solve ending with a fresh Jacobian stopped
 
 
 class NewtonInfo(NamedTuple):
@@ -108,7 +114,8 @@ class NewtonState(NamedTuple):
 
 
 def empty_jacobian_cache(size: int, dtype) -> JacobianCache:
-    return JacobianCache(inverse=jnp.zeros((size * size,), dtype), valid=jnp.asarray(False))
+    return JacobianCache(inverse=jnp.zeros((size * size,), dtype), valid=jnp.asarray(False),
+                         floor=jnp.asarray(0.0, dtype))
 
 
 def newton_init(x0, cache: JacobianCache) -> NewtonState:
@@ -137,13 +144,20 @@ def converged(nrm, theta_est, rate_known, stale):
     return jnp.logical_or(nrm <= 1.0, rate_test)
 
 
-def stagnated_at_roundoff(theta, nrm, first, stale):
+def stale_roundoff_level(floor):
+    """Up to which scaled increment a reused Jacobian's stagnation counts as round-off:
+    ROUNDOFF_LEVEL, or FLOOR_FACTOR times ``floor`` (where the last solve with a fresh Jacobian
+    stopped), at most STAGNATION_LEVEL."""
+    return jnp.clip(FLOOR_FACTOR * floor, ROUNDOFF_LEVEL, STAGNATION_LEVEL)
+
+
+def stagnated_at_roundoff(theta, nrm, first, stale, floor):
     """The iteration no longer contracts (``theta``: the increment over the smallest one of the
-    solve so far, so that noise that makes the increments go up and down counts), but the increment is already within
-    STAGNATION_LEVEL·tol (ROUNDOFF_LEVEL·tol with a reused Jacobian, whose slow contraction
-    is no evidence of round-off: it is refreshed instead, see ``needs_refresh``): the iterates
-    are dominated by round-off."""
-    level = jnp.where(stale, ROUNDOFF_LEVEL, STAGNATION_LEVEL)
+    solve so far, so that noise that makes the increments go up and down counts), but the
+    increment is already within STAGNATION_LEVEL·tol (with a reused Jacobian, whose slow
+    contraction is no evidence of round-off, within :func:`stale_roundoff_level`; above it the
+    Jacobian is refreshed instead, see ``needs_refresh``): the iterates are dominated by round-off."""
+    level = jnp.where(stale, stale_roundoff_level(floor), STAGNATION_LEVEL)
     return jnp.logical_and(~first, jnp.logical_and(theta >= THETA_STAGNATION, nrm <= level))
 
 
@@ -152,16 +166,17 @@ def diverged(theta, first, stale):
     return jnp.logical_and(jnp.logical_and(~first, ~stale), theta >= THETA_DIVERGED)
 
 
-def needs_refresh(theta, nrm, k, first, stale):
+def needs_refresh(theta, nrm, k, first, stale, floor):
     """A reused Jacobian is too poor: evaluate a fresh one at the current iterate.
 
-    Above round-off (below it the ratio of increments is noise): when it contracts slower than
+    Above round-off (below :func:`stale_roundoff_level` the ratio of increments is noise): when it contracts slower than
     THETA_REFRESH, or when at its rate the increment would need more than REFRESH_PREDICTED
     further iterations to reach the tolerance (a fresh Jacobian costs about as much); and in
     any case after REFRESH_ITERATIONS iterations.
     """
     remaining = jnp.log(jnp.maximum(nrm, 1.0)) / -jnp.log(jnp.clip(theta, 1e-300, 0.999))
-    slow = jnp.logical_and(nrm > ROUNDOFF_LEVEL, jnp.logical_or(theta >= THETA_REFRESH, remaining > REFRESH_PREDICTED))
+    above = nrm > stale_roundoff_level(floor)
+    slow = jnp.logical_and(above, jnp.logical_or(theta >= THETA_REFRESH, remaining > REFRESH_PREDICTED))
     return jnp.logical_and(jnp.logical_and(stale, ~first), jnp.logical_or(slow, k >= REFRESH_ITERATIONS))
 
 
@@ -169,7 +184,7 @@ def needs_refresh(theta, nrm, k, first, stale):
 def fresh_jacobian(jac_fn, params, x) -> JacobianCache:
     """Evaluate the Jacobian at x and invert it (flattened, see :class:`JacobianCache`)."""
     _, jac = jac_fn(x, params)
-    return JacobianCache(inverse(jac).ravel(), jnp.asarray(True))
+    return JacobianCache(inverse(jac).ravel(), jnp.asarray(True), jnp.asarray(0.0, jac.dtype))
 
 
 def inverse(a):
@@ -211,14 +226,16 @@ def _judge(st: NewtonState, x, dx, r, options: NewtonOptions) -> NewtonState:
     rate_known = jnp.logical_and(~first, jnp.logical_or(~stale, jnp.logical_and(st.k >= 2, st.stale)))
     theta_est = jnp.where(stale, jnp.maximum(theta, st.theta_prev), theta)
     finite = jnp.logical_and(jnp.isfinite(nrm), jnp.isfinite(res_norm))
-    ok = jnp.logical_or(converged(nrm, theta_est, rate_known, stale), stagnated_at_roundoff(progress, nrm, first, stale))
+    floor = st.cache.floor
+    ok = jnp.logical_or(converged(nrm, theta_est, rate_known, stale),
+                        stagnated_at_roundoff(progress, nrm, first, stale, floor))
     k = st.k + 1
     result = jnp.select(
         [~finite, ok, diverged(theta, first, stale), k >= options.max_iterations],
         [Result.NONFINITE, Result.SUCCESSFUL, Result.DIVERGED, Result.MAX_ITERATIONS],
         -1,
     ).astype(jnp.int32)
-    refresh = jnp.logical_or(needs_refresh(theta, nrm, k, first, stale), not options.reuse_jacobian)
+    refresh = jnp.logical_or(needs_refresh(theta, nrm, k, first, stale, floor), not options.reuse_jacobian)
     return st._replace(
         x=jnp.where(finite, x, st.x),
         k=k,
@@ -360,7 +377,8 @@ def newton_solve(
         # A fresh Jacobian at the current iterate when asked (at most once per epoch), then
         # iterations until the solve ends or the contraction asks for another refresh (the
         # first iteration of an epoch always runs: refresh=True marks it as the fresh one).
-        st = st._replace(cache=_refreshed(jac_fn, params, st), n_jac=st.n_jac + st.refresh.astype(jnp.int32))
+        cache = _refreshed(jac_fn, params, st)._replace(floor=st.cache.floor)
+        st = st._replace(cache=cache, n_jac=st.n_jac + st.refresh.astype(jnp.int32))
         first = (jnp.asarray(True), st)
         _, out = jax.lax.while_loop(
             lambda c: c[0] | (~newton_done(c[1]) & ~c[1].refresh),
@@ -374,7 +392,9 @@ def newton_solve(
         st = jax.tree_util.tree_map(functools.partial(jnp.where, cache.valid), fast_start(fn, params, st, options), st)
     out = jax.lax.while_loop(lambda st: ~newton_done(st), epoch, st)
     ok = out.result == Result.SUCCESSFUL
-    cache = out.cache._replace(valid=jnp.logical_and(out.cache.valid, ok))
+    # where a solve that ended with a fresh Jacobian stopped: the round-off level of the next ones
+    floor = jnp.where(jnp.logical_and(ok, ~out.stale), out.nrm_prev, out.cache.floor)
+    cache = out.cache._replace(valid=jnp.logical_and(out.cache.valid, ok), floor=floor)
     return out.x, NewtonInfo(out.result, out.k, out.res_norm, out.n_jac), cache
 
 

@@ -87,7 +87,8 @@ lobattodae 0.1; it is recognised as such.  Version 3 is the single-file layout w
 reused inverse Jacobian flattened, ``stepper.jacobian.inverse`` of shape (N²,) instead of
 (N, N).  Version 8 adds ``controller.n_floored`` to the state of error-controlled runs.
 Version 9 keeps step doubling's two inverse Jacobians stacked in the state of
-error-controlled runs, ``stepper.jacobians.inverse`` of shape (2, N²).)
+error-controlled runs, ``stepper.jacobians.inverse`` of shape (2, N²).  Version 10 adds the
+round-off level Newton measured, ``stepper.jacobian.floor`` (``stepper.jacobians.floor``).)
 
 Atomic writes
 -------------
@@ -178,12 +179,12 @@ __all__ = [
 ]
 
 FORMAT = "lobattodae-checkpoint"
-VERSION = 9
+VERSION = 10
 
 # schema_fingerprint(<the loop's State templates>) for the current VERSION: the States of constant
 # steps and of error control together; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "c898476a30e85b2c"  # schema_fingerprint of the States (constant, PI) of VERSION
+STATE_FINGERPRINT: str | None = "511850a31100f8c8"  # schema_fingerprint of the States (constant, PI) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"
