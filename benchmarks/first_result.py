@@ -1,7 +1,7 @@
 """First result in a fresh process: import, compilation and run, as a new user meets them.
 
-Each case runs ``--repeats`` times in a new interpreter pinned to CPU 0 (``taskset``, when
-available), with one XLA thread, and prints the wall time from before ``import lobattodae`` to
+Each case runs ``--repeats`` times in a new interpreter pinned to one CPU (``--cpu``, default 0;
+``taskset``, when available), with one XLA thread, and prints the wall time from before ``import lobattodae`` to
 the result:
 
 * ``knife-edge``: the knife edge, s = 4, adaptive (rtol = atol = 1e-8), to the end of its span;
@@ -114,8 +114,8 @@ print(f"first result {first:.2f} s; then t_eval 50, 500, interpolated, dense_out
 PREAMBLE = "import time; t0 = time.perf_counter()\nimport lobattodae as L\nL.set_cpu_threads(1)\n"
 
 
-def run(case: str, src: str, env: dict) -> str:
-    pin = ["taskset", "-c", "0"] if shutil.which("taskset") else []
+def run(case: str, src: str, env: dict, cpu: int = 0) -> str:
+    pin = ["taskset", "-c", str(cpu)] if shutil.which("taskset") else []
     proc = subprocess.run([*pin, sys.executable, "-c", PREAMBLE + CASES[case]], capture_output=True, text=True,
                           env={**env, "PYTHONPATH": os.path.abspath(src)}, timeout=600)
     if proc.returncode:
@@ -136,6 +136,7 @@ def main() -> None:
     parser.add_argument("--src", action="append", help="the src directory to import (repeatable; default src)")
     parser.add_argument("--cache", choices=("cold", "warm"), default="cold")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--cpu", type=int, default=0, help="the CPU every child process is pinned to")
     opts = parser.parse_args()
     sources = opts.src or ["src"]
     warm = opts.cache == "warm"
@@ -144,10 +145,10 @@ def main() -> None:
         for case in opts.case:
             if warm:
                 for src in sources:
-                    run(case, src, environment(base, cache, warm, src))  # fills the cache
+                    run(case, src, environment(base, cache, warm, src), opts.cpu)  # fills the cache
             for _ in range(opts.repeats):  # alternating between the sources
                 for src in sources:
-                    print(f"{case:<13} {src:<20} {opts.cache}: {run(case, src, environment(base, cache, warm, src))}")
+                    print(f"{case:<13} {src:<20} {opts.cache}: {run(case, src, environment(base, cache, warm, src), opts.cpu)}")
 
 
 if __name__ == "__main__":

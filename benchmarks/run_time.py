@@ -1,0 +1,87 @@
+"""Run time of one `solve` per problem once compiled, and what its Newton solves did.
+
+Each case is solved once (compilation), then ``--repeats`` times; the best wall time is
+printed with the steps, rejections, Newton iterations and Newton matrices (Jacobian
+evaluations) of the run:
+
+* ``knife-edge``: s = 4, adaptive (rtol = atol = 1e-8), T = 1000;
+* ``falling-disk``: s = 5, adaptive, T = 100;
+* ``sleigh``: s = 6, adaptive, T = 1000;
+* ``andrews``: Andrews' squeezer (the external test set), s = 5, adaptive, to t = 0.03;
+* ``crank``: the flexible slider crank (the external test set), s = 6, adaptive, to t = 0.1;
+* ``bicycle``: the Whipple bicycle at 5 m/s, s = 4, 1000 constant steps over 10 s.
+
+Every case runs in a new interpreter pinned to one CPU (``--cpu``) with one XLA thread;
+``--src DIR`` (repeatable) imports another checkout's ``src``, alternating, so that before
+and after are measured in one session::
+
+    .venv/bin/python benchmarks/run_time.py --src /tmp/old/src --src src --rounds 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+
+CHILD = r"""
+import sys, time
+import lobattodae as L
+L.set_cpu_threads(1)
+sys.path.insert(0, "benchmarks")
+
+def build(case):
+    if case in ("andrews", "crank"):
+        import importlib
+        S = importlib.import_module("testset." + case).build()
+        return S.problem, S.q0, S.p0, S.args, S.t_span, {"andrews": 5, "crank": 6}[case], dict(rtol=1e-8, atol=1e-8)
+    if case == "bicycle":
+        from lobattodae.mechanics import bicycle as bike
+        model = bike.whipple_bicycle()
+        args = model.args()
+        q0, p0 = bike.upright_state(model, 5.0, args, roll_rate=0.5)
+        return model.problem, q0, p0, args, (0.0, 10.0), 4, dict(n_steps=1000)
+    s, t_end = {"knife-edge": (4, 1000.0), "falling-disk": (5, 100.0), "sleigh": (6, 1000.0)}[case]
+    ex = L.examples.get_example(case)
+    return ex.problem, ex.q0, ex.p0, ex.args, (ex.t_span[0], t_end), s, dict(rtol=1e-8, atol=1e-8)
+
+case, repeats = sys.argv[1], int(sys.argv[2])
+problem, q0, p0, args, span, s, kw = build(case)
+method = L.LobattoIIIAIIIB(stages=s)
+run = lambda: L.solve(problem, method, span, q0, p0, args=args, save_every="final", **kw)  # noqa: E731
+sol = run()
+times = []
+for _ in range(repeats):
+    t = time.perf_counter()
+    sol = run()
+    times.append(time.perf_counter() - t)
+st = sol.stats
+print(f"s={s} run {min(times) * 1e3:8.1f} ms  steps {int(st['n_steps'])} rejected {int(st['n_rejected'])} "
+      f"newton {int(st['n_newton'])} matrices {int(st['n_jacobians'])}")
+"""
+CASES = ("knife-edge", "falling-disk", "sleigh", "andrews", "crank", "bicycle")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--case", choices=CASES, nargs="+", default=list(CASES))
+    parser.add_argument("--src", action="append", help="the src directory to import (repeatable; default src)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed solves per process (the best is printed)")
+    parser.add_argument("--rounds", type=int, default=1, help="processes per case and source, alternating")
+    parser.add_argument("--cpu", type=int, default=1, help="the CPU every child process is pinned to")
+    opts = parser.parse_args()
+    pin = ["taskset", "-c", str(opts.cpu)] if shutil.which("taskset") else []
+    for case in opts.case:
+        for _ in range(opts.rounds):
+            for src in opts.src or ["src"]:
+                proc = subprocess.run([*pin, sys.executable, "-c", CHILD, case, str(opts.repeats)], capture_output=True,
+                                      text=True, env={**os.environ, "PYTHONPATH": os.path.abspath(src)}, timeout=1200)
+                if proc.returncode:
+                    raise SystemExit(proc.stderr)
+                print(f"{case:<13} {src:<20} {proc.stdout.strip()}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
