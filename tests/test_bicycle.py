@@ -122,6 +122,10 @@ def test_nonlinear_runs_self_stable_and_weave(model, args):
         q0, p0 = bike.upright_state(model, v, args, roll_rate=kick)
         sol = lobattodae.solve(model.problem, method, (0.0, T), q0, p0, n_steps=500, args=args)
         assert sol.success
+        # Newton reuses its matrix: the stage equations' round-off (momenta ~470) lies above the
+        # tolerance, and a reused matrix stagnating there is accepted at the level a fresh one
+        # measured (it was refreshed at every step before, 2026-11-28)
+        assert int(sol.stats["n_jacobians"]) < 50, sol.stats["n_jacobians"]
         assert np.abs(model.constraint_residual(sol.t, sol.q, sol.p, args)).max() <= 1e-12
         assert np.abs(model.holonomic_residual(sol.t, sol.q, args)).max() <= 1e-12
         H = model.energy(sol.t, sol.q, sol.p, args)
