@@ -11,26 +11,26 @@ evaluations) of the run:
 * ``crank``: the flexible slider crank (the external test set), s = 6, adaptive, to t = 0.1;
 * ``bicycle``: the Whipple bicycle at 5 m/s, s = 4, 1000 constant steps over 10 s.
 
-Every case runs in a new interpreter pinned to one CPU (``--cpu``) with one XLA thread;
-``--src DIR`` (repeatable) imports another checkout's ``src``, alternating, so that before
-and after are measured in one session::
+Every case runs in a new interpreter with one XLA thread, pinned with this process to one CPU
+(``--pin-cpu``); ``--src DIR`` (repeatable) imports another checkout's ``src``, alternating, so
+that before and after are measured in one session::
 
-    .venv/bin/python benchmarks/run_time.py --src /tmp/old/src --src src --rounds 2
+    .venv/bin/python benchmarks/run_time.py --pin-cpu 1 --src /tmp/old/src --src src --rounds 2
 """
 
 from __future__ import annotations
 
-import argparse
 import os
-import shutil
-import subprocess
 import sys
+
+from lib import cli
+from lib.output import BENCHMARKS, child_env, child_result, python_child
 
 CHILD = r"""
 import sys, time
 import lobattodae as L
+from lib.output import print_result
 L.set_cpu_threads(1)
-sys.path.insert(0, "benchmarks")
 
 def build(case):
     if case in ("andrews", "crank"):
@@ -58,29 +58,29 @@ for _ in range(repeats):
     sol = run()
     times.append(time.perf_counter() - t)
 st = sol.stats
-print(f"s={s} run {min(times) * 1e3:8.1f} ms  steps {int(st['n_steps'])} rejected {int(st['n_rejected'])} "
-      f"newton {int(st['n_newton'])} matrices {int(st['n_jacobians'])}")
+print_result({"s": s, "ms": 1e3 * min(times), "steps": int(st["n_steps"]), "rejected": int(st["n_rejected"]),
+              "newton": int(st["n_newton"]), "matrices": int(st["n_jacobians"])})
 """
 CASES = ("knife-edge", "falling-disk", "sleigh", "andrews", "crank", "bicycle")
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = cli.parser(__doc__, "pin_cpu", pin_cpu={"default": 1})
     parser.add_argument("--case", choices=CASES, nargs="+", default=list(CASES))
     parser.add_argument("--src", action="append", help="the src directory to import (repeatable; default src)")
     parser.add_argument("--repeats", type=int, default=5, help="timed solves per process (the best is printed)")
     parser.add_argument("--rounds", type=int, default=1, help="processes per case and source, alternating")
-    parser.add_argument("--cpu", type=int, default=1, help="the CPU every child process is pinned to")
-    opts = parser.parse_args()
-    pin = ["taskset", "-c", str(opts.cpu)] if shutil.which("taskset") else []
+    opts = cli.start(parser.parse_args())  # the children inherit the CPU
+    root = os.path.dirname(BENCHMARKS)
     for case in opts.case:
         for _ in range(opts.rounds):
             for src in opts.src or ["src"]:
-                proc = subprocess.run([*pin, sys.executable, "-c", CHILD, case, str(opts.repeats)], capture_output=True,
-                                      text=True, env={**os.environ, "PYTHONPATH": os.path.abspath(src)}, timeout=1200)
-                if proc.returncode:
-                    raise SystemExit(proc.stderr)
-                print(f"{case:<13} {src:<20} {proc.stdout.strip()}", flush=True)
+                env = child_env(no_cache=False, PYTHONPATH=os.pathsep.join([os.path.abspath(src), root, BENCHMARKS]))
+                r = child_result(python_child(CHILD, case, str(opts.repeats)), env, timeout=1200)
+                if "error" in r:
+                    sys.exit(f"{case} with {src}: {r['error']}")
+                print(f"{case:<13} {src:<20} s={r['s']} run {r['ms']:8.1f} ms  steps {r['steps']} rejected "
+                      f"{r['rejected']} newton {r['newton']} matrices {r['matrices']}", flush=True)
 
 
 if __name__ == "__main__":

@@ -161,7 +161,7 @@ def stage_residual(problem, pair: LobattoPair, layout: Layout, x, params: StageP
     return _rows(pair, params, st, phi)
 
 
-def stage_jacobian(problem, pair: LobattoPair, layout: Layout, x, params: StageParams, derivative=None):
+def stage_jacobian(problem, pair: LobattoPair, layout: Layout, x, params: StageParams, derivative=value_and_jacobian):
     """``(residual, ∂residual/∂x)`` at x, assembled from per-stage blocks.
 
     One pass per stage for ``(f, g)`` in ``(q, p, λ)`` (``2n + m`` directions) and one for φ in
@@ -170,7 +170,6 @@ def stage_jacobian(problem, pair: LobattoPair, layout: Layout, x, params: StageP
     ``derivative(fun, z) -> (fun(z), ∂fun/∂z)`` differentiates a block: forward-mode autodiff
     (exact, the default) or :func:`forward_differences`.
     """
-    derivative = value_and_jacobian if derivative is None else derivative
     Q, P, Z = layout.unpack(x, params)
     h, args = params.h, params.args
     n = Q.shape[1]

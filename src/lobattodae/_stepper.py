@@ -29,11 +29,12 @@ RETRY_FACTOR = 0.25
 
 #: The start-multiplier policies; see :class:`LobattoIIIAIIIB` (``lam_start``).
 LAM_START_MODES = ("auto", "previous", "consistent")
-#: Simplified Newton's matrix, by the option ``jacobian`` of :class:`LobattoIIIAIIIB`.
+#: By the option ``jacobian`` of :class:`LobattoIIIAIIIB`: (simplified Newton's matrix, the
+#: exact Jacobian that the derivatives of a step use).
 NEWTON_JACOBIANS = {
-    "differences": se.stage_jacobian_differences,
-    "structured": se.stage_jacobian,
-    "autodiff": se.stage_jacobian_autodiff,
+    "differences": (se.stage_jacobian_differences, se.stage_jacobian),
+    "structured": (se.stage_jacobian, se.stage_jacobian),
+    "autodiff": (se.stage_jacobian_autodiff, se.stage_jacobian_autodiff),
 }
 #: A reused Jacobian is refreshed when the step size changed by more than this fraction.
 H_CHANGE_REFRESH = 0.2
@@ -441,10 +442,8 @@ class LobattoIIIAIIIB:
         residual = functools.partial(se.stage_residual, problem, pair, layout)
         h_ok = jnp.abs(h - state.h_jacobian) <= H_CHANGE_REFRESH * jnp.abs(h)
         cache = state.jacobian._replace(valid=jnp.logical_and(state.jacobian.valid, h_ok))
-        newton_matrix = functools.partial(NEWTON_JACOBIANS[self.jacobian], problem, pair, layout)
+        newton_matrix, exact = (functools.partial(fn, problem, pair, layout) for fn in NEWTON_JACOBIANS[self.jacobian])
         x, ninfo, cache = newton_solve(residual, newton_matrix, x0, params, cache, self.newton)
-        exact = se.stage_jacobian_autodiff if self.jacobian == "autodiff" else se.stage_jacobian
-        jacobian = functools.partial(exact, problem, pair, layout)
         h_jac = jnp.where(ninfo.n_jacobians > 0, h, state.h_jacobian)
         position_constraint = getattr(problem, "position_constraint", None) is not None  # static
 
@@ -453,7 +452,7 @@ class LobattoIIIAIIIB:
             # Derivatives are those of the exact stage solution (implicit function theorem);
             # checkpointed, so that reverse mode keeps (x, params) per step and recomputes the
             # stage Jacobian and the vector fields from them instead of storing them.
-            x = implicit_root(residual, jacobian, x, params)
+            x = implicit_root(residual, exact, x, params)
             stages = se.stage_values(problem, pair, layout, x, params)
             q1, p1, lam1 = se.step_values(pair, params, stages)
             if position_constraint:  # ψ(t_1, q_1) = 0 and φ(t_1, q_1, p_1) = 0 by projection
