@@ -7,6 +7,9 @@ to ``jax.jit``: compiled code is cached per problem object.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import functools
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -58,6 +61,49 @@ def _check_functions(problem, fields: tuple[tuple[str, str], ...]) -> None:
             f"(the functions are {call.replace('=...', '')}; pass them by keyword)."
         )
 
+
+#: Set while the problem's functions are checked one by one (:func:`plain_calls`).
+_PLAIN_CALLS = contextvars.ContextVar("lobattodae_plain_calls", default=False)
+
+
+@contextlib.contextmanager
+def plain_calls():
+    """Within this context the problem's functions run as given, not through ``jax.jit``: the
+    checks of :mod:`~lobattodae._problem_trace` read what a failing function was called with
+    (the very ``args`` objects), which a jitted call rebuilds from its leaves."""
+    token = _PLAIN_CALLS.set(True)
+    try:
+        yield
+    finally:
+        _PLAIN_CALLS.reset(token)
+
+
+class _TracedOnce:
+    """A problem function called through ``jax.jit`` (see :func:`_traced_once`)."""
+
+    def __init__(self, fn):
+        self.plain, self.jitted = fn, jax.jit(fn)
+        functools.update_wrapper(self, fn)
+
+    def __call__(self, *args):
+        return (self.plain if _PLAIN_CALLS.get() else self.jitted)(*args)
+
+
+def _traced_once(problem, names: tuple[str, ...]) -> None:
+    """Replace the functions ``names`` of ``problem`` (fields or methods) by jitted calls of them.
+
+    A step program evaluates the problem's functions in a dozen places (the stage residual in
+    both of Newton's loops, Newton's matrix, the stage completion, the consistent λ, the step
+    doubling's vector fields, the projection). Called plainly, every place traces the function
+    again, with its derivatives; a jitted function is traced once per input signature, and every
+    place reuses that trace and its lowering. XLA inlines the calls, so the compiled program
+    and its speed are the same (``benchmarks/RESULTS.md``, 2026-11-28 18:30: Andrews' squeezer
+    traces in 0.50 instead of 1.05 s and lowers in 0.34 instead of 0.50 s).
+    """
+    for name in names:
+        fn = getattr(problem, name, None)
+        if fn is not None and not isinstance(fn, _TracedOnce):
+            object.__setattr__(problem, name, _TracedOnce(fn))
 
 @dataclass(frozen=True, eq=False)
 class PartitionedDAE:
@@ -111,6 +157,7 @@ class PartitionedDAE:
                 ("phi", "phi(t, q, p, args) -> (m,)"),
             ),
         )
+        _traced_once(self, ("f", "g", "phi", "position_constraint"))
 
 
 class _HamiltonianMixin:
@@ -120,6 +167,9 @@ class _HamiltonianMixin:
 
         f = ∂H/∂p, \qquad g = -∂H/∂q + μ(q)^T λ, \qquad φ = μ(q) \, ∂H/∂p.
     """
+
+    #: The functions the integrator evaluates (traced once per signature: :func:`_traced_once`).
+    EVALUATED = ("f", "g", "phi", "f_and_g")
 
     def hamiltonian(self, t, q, p, args):  # pragma: no cover - overridden
         raise NotImplementedError
@@ -181,6 +231,7 @@ class NonholonomicSystem(_HamiltonianMixin):
                 ("constraint_matrix", "mu(t, q, args) -> (m, n)"),
             ),
         )
+        _traced_once(self, _HamiltonianMixin.EVALUATED)
 
 
 @dataclass(frozen=True, eq=False)
@@ -218,6 +269,7 @@ class MechanicalSystem(_HamiltonianMixin):
                 ("constraint_matrix", "mu(t, q, args) -> (m, n)"),
             ),
         )
+        _traced_once(self, _HamiltonianMixin.EVALUATED)
 
     def hamiltonian(self, t, q, p, args):
         """The energy ``H = ½ pᵀ M(q)⁻¹ p + V(q)``.

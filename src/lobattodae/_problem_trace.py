@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import LobattoDAEInputError, ProblemFunctionError, ShapeError
-from ._problem import _HamiltonianMixin
+from ._problem import _HamiltonianMixin, plain_calls
 
 __all__ = ["check_args", "function_error", "length_hint", "output_signature", "short"]
 
@@ -256,7 +256,8 @@ def _trace(fn, name: str, *a):
         return fn(*b)
 
     try:
-        return jax.eval_shape(call, *a)
+        with plain_calls():
+            return jax.eval_shape(call, *a)
     except Exception as exc:  # re-raised with context: the user's function failed
         raise function_error(name, exc, seen[-1] if seen else ...) from exc
 
