@@ -1,8 +1,10 @@
 """First result in a fresh process: import, compilation and run, as a new user meets them.
 
-Each case runs ``--repeats`` times in a new interpreter pinned to one CPU (``--cpu``, default 0;
-``taskset``, when available), with one XLA thread, and prints the wall time from before ``import lobattodae`` to
-the result:
+Each case runs ``--repeats`` times in a new interpreter pinned to one CPU (``--pin-cpu``, default
+0), with one XLA thread, and prints the wall time from before ``import lobattodae`` to the
+result, and where it went: the imports (jax and lobattodae), and JAX's three compilation phases
+summed over the process's programs (tracing to a jaxpr, lowering to StableHLO, XLA's compilation;
+from ``jax.monitoring``):
 
 * ``knife-edge``: the knife edge, s = 4, adaptive (rtol = atol = 1e-8), to the end of its span;
 * ``falling-disk``: the falling disk, s = 4, adaptive (rtol = atol = 1e-8), to the end of its span;
@@ -26,18 +28,18 @@ that before and after are measured in one session, alternating.
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/first_result.py                       # ~1 min
+    .venv/bin/python benchmarks/first_result.py                       # ~2 min
     .venv/bin/python benchmarks/first_result.py --src /tmp/old/src --src src
 """
 
 from __future__ import annotations
 
-import argparse
 import os
-import shutil
-import subprocess
 import sys
 import tempfile
+
+from lib import cli
+from lib.output import BENCHMARKS, child_env, child_result, python_child
 
 #: diffrax's first result on a problem's index-1 ODE (``setup`` defines ode, t_end, q0, p0).
 DOPRI8 = """
@@ -47,18 +49,18 @@ t1 = time.perf_counter()
 from lib.baselines import Diffrax
 y, nacc, nsteps, ok = Diffrax(ode).final(t_end, ode.from_qp(q0, p0), 1e-8)
 assert ok
-print(f"Dopri8 first result {{time.perf_counter() - t1:.2f}} s (import diffrax + compile + run)")
+done(f"Dopri8 first result {{time.perf_counter() - t1:.2f}} s (import diffrax + compile + run)")
 """
 CASES = {
     "knife-edge": """
 ex = L.examples.get_example("knife-edge")
 sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
-print(f"first result {time.perf_counter() - t0:.2f} s")
+done(f"first result {time.perf_counter() - t0:.2f} s")
 """,
     "falling-disk": """
 ex = L.examples.get_example("falling-disk")
 sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
-print(f"first result {time.perf_counter() - t0:.2f} s")
+done(f"first result {time.perf_counter() - t0:.2f} s")
 """,
     "andrews": """
 import sys; sys.path.insert(0, "benchmarks")
@@ -66,7 +68,7 @@ from testset import andrews
 S = andrews.build()
 t1 = time.perf_counter()
 sol = L.solve(S.problem, L.LobattoIIIAIIIB(stages=5), S.t_span, S.q0, S.p0, args=S.args, rtol=1e-8, atol=1e-8)
-print(f"first result {time.perf_counter() - t0:.2f} s (solve {time.perf_counter() - t1:.2f} s)")
+done(f"first result {time.perf_counter() - t0:.2f} s (solve {time.perf_counter() - t1:.2f} s)")
 """,
     "bicycle": """
 from lobattodae.mechanics import bicycle as bike
@@ -74,8 +76,9 @@ model = bike.whipple_bicycle()
 args = model.args()
 q0, p0 = bike.upright_state(model, 5.0, args, roll_rate=0.5)
 t1 = time.perf_counter()
+PHASES.clear()  # the model's own compilations (its mass matrix, the initial state) are not the solve's
 sol = L.solve(model.problem, L.LobattoIIIAIIIB(stages=4), (0.0, 10.0), q0, p0, n_steps=1000, args=args)
-print(f"first result {time.perf_counter() - t1:.2f} s after the model (import and model {t1 - t0:.2f} s)")
+done(f"first result {time.perf_counter() - t1:.2f} s after the model (import and model {t1 - t0:.2f} s)")
 """,
     "dopri8-knife-edge": DOPRI8.format(setup="""
 from lib.odes import knife_edge
@@ -93,7 +96,7 @@ sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, 
               events=heading)
 t1 = time.perf_counter()
 sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
-print(f"with the event {t1 - t0:.2f} s, then without it {time.perf_counter() - t1:.2f} s")
+done(f"with the event {t1 - t0:.2f} s, then without it {time.perf_counter() - t1:.2f} s")
 """,
     "output-options": """
 import numpy as np
@@ -107,48 +110,59 @@ for kw in ({}, {"t_eval": np.linspace(a, b, 50)}, {"t_eval": np.linspace(a, b, 5
     sol = L.solve(ex.problem, m, ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8, **kw)
     times.append(time.perf_counter() - t1)
     first = first or time.perf_counter() - t0
-print(f"first result {first:.2f} s; then t_eval 50, 500, interpolated, dense_output, "
-      f"save_every 10, 'final': " + ", ".join(f"{x:.2f}" for x in times[1:]) + f" s; all {time.perf_counter() - t0:.2f} s")
+done(f"first result {first:.2f} s; then t_eval 50, 500, interpolated, dense_output, "
+     f"save_every 10, 'final': " + ", ".join(f"{x:.2f}" for x in times[1:]) + f" s; all {time.perf_counter() - t0:.2f} s")
 """,
 }
-PREAMBLE = "import time; t0 = time.perf_counter()\nimport lobattodae as L\nL.set_cpu_threads(1)\n"
+#: Every child starts with this: the clock, a listener for JAX's compilation phases, the imports.
+PREAMBLE = """
+import time; t0 = time.perf_counter()
+import collections
+import jax.monitoring
+PHASES = collections.Counter()
+_PHASE = {"/jax/core/compile/jaxpr_trace_duration": "trace", "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+          "/jax/core/compile/backend_compile_duration": "xla"}
+jax.monitoring.register_event_duration_secs_listener(
+    lambda name, secs, **kw: PHASES.update({_PHASE[name]: secs}) if name in _PHASE else None)
+import lobattodae as L
+L.set_cpu_threads(1)
+IMPORTS = time.perf_counter() - t0
+from lib.output import print_result
+def done(text):
+    print_result({"text": text, "imports": IMPORTS, **{k: PHASES[k] for k in ("trace", "lower", "xla")}})
+"""
 
 
-def run(case: str, src: str, env: dict, cpu: int = 0) -> str:
-    pin = ["taskset", "-c", str(cpu)] if shutil.which("taskset") else []
-    proc = subprocess.run([*pin, sys.executable, "-c", PREAMBLE + CASES[case]], capture_output=True, text=True,
-                          env={**env, "PYTHONPATH": os.path.abspath(src)}, timeout=600)
-    if proc.returncode:
-        raise SystemExit(proc.stderr)
-    return proc.stdout.strip()
-
-
-def environment(base: dict, cache: str, warm: bool, src: str) -> dict:
-    """The child's environment: no persistent cache, or one of its own per source tree."""
-    if warm:
-        return dict(base, LOBATTODAE_CACHE_DIR=os.path.join(cache, os.path.abspath(src).strip("/")))
-    return dict(base, LOBATTODAE_NO_CACHE="1")
+def run(case: str, src: str, cache: str | None) -> str:
+    """One fresh process of ``case`` with the lobattodae of ``src``: its line, and where the time went."""
+    root = os.path.dirname(BENCHMARKS)
+    warm = {} if cache is None else {  # a persistent cache of its own per source tree
+        "LOBATTODAE_NO_CACHE": None, "LOBATTODAE_CACHE_DIR": os.path.join(cache, os.path.abspath(src).strip("/"))}
+    env = child_env(no_cache=cache is None, PYTHONPATH=os.pathsep.join([os.path.abspath(src), root, BENCHMARKS]), **warm)
+    r = child_result(python_child(PREAMBLE + CASES[case]), env, timeout=600)
+    if "error" in r:
+        sys.exit(f"{case} with {src}: {r['error']}")
+    return (f"{r['text']}  [imports {r['imports']:.2f}, tracing {r['trace']:.2f}, lowering {r['lower']:.2f}, "
+            f"XLA {r['xla']:.2f} s]")
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = cli.parser(__doc__, "pin_cpu", pin_cpu={"default": 0})
     parser.add_argument("--case", choices=sorted(CASES), nargs="+", default=sorted(CASES))
     parser.add_argument("--src", action="append", help="the src directory to import (repeatable; default src)")
     parser.add_argument("--cache", choices=("cold", "warm"), default="cold")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--cpu", type=int, default=0, help="the CPU every child process is pinned to")
-    opts = parser.parse_args()
+    opts = cli.start(parser.parse_args())  # the children inherit the CPU
     sources = opts.src or ["src"]
-    warm = opts.cache == "warm"
-    base = {k: v for k, v in os.environ.items() if k not in ("LOBATTODAE_NO_CACHE", "LOBATTODAE_CACHE_DIR")}
-    with tempfile.TemporaryDirectory() as cache:
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = tmp if opts.cache == "warm" else None
         for case in opts.case:
-            if warm:
+            if cache is not None:
                 for src in sources:
-                    run(case, src, environment(base, cache, warm, src), opts.cpu)  # fills the cache
+                    run(case, src, cache)  # fills the cache
             for _ in range(opts.repeats):  # alternating between the sources
                 for src in sources:
-                    print(f"{case:<13} {src:<20} {opts.cache}: {run(case, src, environment(base, cache, warm, src), opts.cpu)}")
+                    print(f"{case:<13} {src:<20} {opts.cache}: {run(case, src, cache)}", flush=True)
 
 
 if __name__ == "__main__":

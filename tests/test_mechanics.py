@@ -49,15 +49,21 @@ def test_generated_functions_equal_hand_written(factory, example, params):
     model = factory()
     ex = example(**params)
     args = model.args(**ex.args._asdict())
+    def same(gen, hand):
+        # equal to round-off relative to the vector's size: an entry formed by cancellation
+        # (the falling disk's g: terms of 4e3 summing to 2e2) differs in its last digits
+        # between two programs that order the operations differently
+        np.testing.assert_allclose(gen, hand, rtol=0, atol=1e-14 * max(1.0, np.max(np.abs(hand))))
+
     for t, q, p, lam in _random_states(model.n, model.m):
         for gen, hand in (
             (model.problem.f(t, q, p, args), ex.problem.f(t, q, p, ex.args)),
             (model.problem.g(t, q, p, lam, args), ex.problem.g(t, q, p, lam, ex.args)),
             (model.problem.phi(t, q, p, args), ex.problem.phi(t, q, p, ex.args)),
         ):
-            np.testing.assert_allclose(gen, hand, rtol=1e-14, atol=1e-14)
+            same(gen, hand)
         v, w = model.problem.f_and_g(t, q, p, lam, args)
-        np.testing.assert_allclose(w, ex.problem.g(t, q, p, lam, ex.args), rtol=1e-14, atol=1e-14)
+        same(w, ex.problem.g(t, q, p, lam, ex.args))
         np.testing.assert_allclose(model.energy(t, q, p, args), ex.invariants["energy"](t, q, p, ex.args),
                                    rtol=1e-13, atol=1e-14)
 

@@ -85,8 +85,8 @@ class _TracedOnce:
         self.plain, self.jitted = fn, jax.jit(fn)
         functools.update_wrapper(self, fn)
 
-    def __call__(self, *args):
-        return (self.plain if _PLAIN_CALLS.get() else self.jitted)(*args)
+    def __call__(self, *args, **kwargs):
+        return (self.plain if _PLAIN_CALLS.get() else self.jitted)(*args, **kwargs)
 
 
 def _traced_once(problem, names: tuple[str, ...]) -> None:
@@ -157,7 +157,8 @@ class PartitionedDAE:
                 ("phi", "phi(t, q, p, args) -> (m,)"),
             ),
         )
-        _traced_once(self, ("f", "g", "phi", "position_constraint"))
+        # f_and_g where a subclass has one (the models of lobattodae.mechanics)
+        _traced_once(self, ("f", "g", "phi", "f_and_g", "position_constraint"))
 
 
 class _HamiltonianMixin:
