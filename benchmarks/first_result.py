@@ -28,7 +28,7 @@ that before and after are measured in one session, alternating.
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/first_result.py                       # ~2 min
+    .venv/bin/python benchmarks/first_result.py                       # ~4 min
     .venv/bin/python benchmarks/first_result.py --src /tmp/old/src --src src
 """
 
