@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import lobattodae  # noqa: F401  (float64 before anything else touches JAX)
 
-from . import andrews, caraxis, crank, fekete, knife_edge, rolling_disc, servo_sleigh, sleigh, vertical_disk
+from . import andrews, caraxis, crank, fekete, fourbar, knife_edge, rolling_disc, servo_sleigh, sleigh, vertical_disk
 from ._types import FastTest, Setup, TestProblem, closed_form, error, reference_at
 
 __all__ = ["PROBLEMS", "FastTest", "Setup", "TestProblem", "closed_form", "error", "reference_at"]
@@ -34,6 +34,7 @@ PROBLEMS: dict[str, TestProblem] = {
         crank.PROBLEM,
         fekete.PROBLEM,
         rolling_disc.PROBLEM,
+        fourbar.PROBLEM,
         vertical_disk.PROBLEM,
         sleigh.PROBLEM,
         knife_edge.PROBLEM,
