@@ -22,14 +22,14 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from benchmarks.testset import PROBLEMS, TestProblem, error  # noqa: E402
-from benchmarks.testset import andrews, caraxis, crank, fekete, knife_edge, rolling_disc, servo_sleigh, sleigh, vertical_disk  # noqa: E402
+from benchmarks.testset import andrews, caraxis, crank, fekete, fourbar, knife_edge, rolling_disc, servo_sleigh, sleigh, vertical_disk  # noqa: E402,E501
 
 NAMES = list(PROBLEMS)
 
 
 def test_registry():
-    assert NAMES == ["andrews", "caraxis", "crank", "fekete", "rolling-disc", "vertical-disk", "sleigh", "knife-edge",
-                     "servo-sleigh", "servo-sleigh-rest"]
+    assert NAMES == ["andrews", "caraxis", "crank", "fekete", "rolling-disc", "fourbar", "vertical-disk", "sleigh",
+                     "knife-edge", "servo-sleigh", "servo-sleigh-rest"]
     for name, entry in PROBLEMS.items():
         assert isinstance(entry, TestProblem) and entry.name == name
         assert entry.source and entry.ref_accuracy > 0 and entry.test.bound > 0
@@ -227,6 +227,25 @@ def test_rolling_disc_reference_and_conversion():
     for qk, uk in zip(q, u):
         np.testing.assert_allclose(mdl.momenta(1.0, qk, qdot(qk, uk), s.args), momenta(qk, uk), rtol=1e-13, atol=1e-13)
         np.testing.assert_allclose(mdl.constraint_residual(1.0, qk, momenta(qk, uk), s.args), 0.0, atol=1e-11)
+
+
+# ----------------------------------------------------------------------------- four-bar linkage
+def test_fourbar_reference_and_conversion():
+    """SymPy's own equations (System.form_eoms) reproduce the stored reference at t = 1
+    (DOP853), the initial state closes the loop, and the converted model's momenta and
+    constraints agree with SymPy's speeds and loop closure along the reference."""
+    t, q, p, u = fourbar.compute_reference("DOP853", 1e-13, t_eval=(1.0,))
+    np.testing.assert_allclose(q, np.array(fourbar.Q_REF)[:1], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(p, np.array(fourbar.P_REF)[:1], rtol=0, atol=1e-12)
+    mdl, s = fourbar.model(), fourbar.build()
+    assert (mdl.n, mdl.m, mdl.n_holonomic) == (3, 2, 2)
+    _, closure, momenta = fourbar._numeric()
+    assert np.max(np.abs(closure(s.q0)[0])) < 1e-15
+    for qk, uk in zip(q, u):  # q' = u for pin joints
+        np.testing.assert_allclose(mdl.momenta(1.0, qk, uk, s.args), momenta(qk, uk), rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(mdl.constraint_residual(1.0, qk, momenta(qk, uk), s.args), 0.0, atol=1e-11)
+        psi = np.asarray(s.problem.position_constraint(1.0, jnp.asarray(qk), s.args))
+        np.testing.assert_allclose(psi, closure(qk)[0], rtol=0, atol=1e-15)
 
 
 # ----------------------------------------------------------------------------- closed forms
