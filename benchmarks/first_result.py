@@ -1,7 +1,8 @@
 """First result in a fresh process: import, compilation and run, as a new user meets them.
 
 Each case runs ``--repeats`` times in a new interpreter pinned to one CPU (``--pin-cpu``, default
-0), with one XLA thread, and prints the wall time from before ``import lobattodae`` to the
+0), with one XLA thread (``--all-cpus``: on every CPU, with XLA's default threads, as a user's
+process runs; XLA then compiles a program's kernels in parallel), and prints the wall time from before ``import lobattodae`` to the
 result, and where it went: the imports (jax and lobattodae), and JAX's three compilation phases
 summed over the process's programs (tracing to a jaxpr, lowering to StableHLO, XLA's compilation;
 from ``jax.monitoring``):
@@ -118,6 +119,7 @@ done(f"first result {first:.2f} s; then t_eval 50, 500, interpolated, dense_outp
 PREAMBLE = """
 import time; t0 = time.perf_counter()
 import collections
+import sys
 import jax.monitoring
 PHASES = collections.Counter()
 _PHASE = {"/jax/core/compile/jaxpr_trace_duration": "trace", "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
@@ -125,7 +127,8 @@ _PHASE = {"/jax/core/compile/jaxpr_trace_duration": "trace", "/jax/core/compile/
 jax.monitoring.register_event_duration_secs_listener(
     lambda name, secs, **kw: PHASES.update({_PHASE[name]: secs}) if name in _PHASE else None)
 import lobattodae as L
-L.set_cpu_threads(1)
+if "--all-cpus" not in sys.argv:
+    L.set_cpu_threads(1)
 IMPORTS = time.perf_counter() - t0
 from lib.output import print_result
 def done(text):
@@ -133,13 +136,13 @@ def done(text):
 """
 
 
-def run(case: str, src: str, cache: str | None) -> str:
+def run(case: str, src: str, cache: str | None, all_cpus: bool = False) -> str:
     """One fresh process of ``case`` with the lobattodae of ``src``: its line, and where the time went."""
     root = os.path.dirname(BENCHMARKS)
     warm = {} if cache is None else {  # a persistent cache of its own per source tree
         "LOBATTODAE_NO_CACHE": None, "LOBATTODAE_CACHE_DIR": os.path.join(cache, os.path.abspath(src).strip("/"))}
     env = child_env(no_cache=cache is None, PYTHONPATH=os.pathsep.join([os.path.abspath(src), root, BENCHMARKS]), **warm)
-    r = child_result(python_child(PREAMBLE + CASES[case]), env, timeout=600)
+    r = child_result(python_child(PREAMBLE + CASES[case], *(["--all-cpus"] if all_cpus else [])), env, timeout=600)
     if "error" in r:
         sys.exit(f"{case} with {src}: {r['error']}")
     return (f"{r['text']}  [imports {r['imports']:.2f}, tracing {r['trace']:.2f}, lowering {r['lower']:.2f}, "
@@ -152,17 +155,22 @@ def main() -> None:
     parser.add_argument("--src", action="append", help="the src directory to import (repeatable; default src)")
     parser.add_argument("--cache", choices=("cold", "warm"), default="cold")
     parser.add_argument("--repeats", type=int, default=3)
-    opts = cli.start(parser.parse_args())  # the children inherit the CPU
+    parser.add_argument("--all-cpus", action="store_true",
+                        help="run the children on every CPU with XLA's default threads (no --pin-cpu)")
+    opts = parser.parse_args()
+    if opts.all_cpus:
+        opts.pin_cpu = None
+    opts = cli.start(opts)  # the children inherit the CPU
     sources = opts.src or ["src"]
     with tempfile.TemporaryDirectory() as tmp:
         cache = tmp if opts.cache == "warm" else None
         for case in opts.case:
             if cache is not None:
                 for src in sources:
-                    run(case, src, cache)  # fills the cache
+                    run(case, src, cache, opts.all_cpus)  # fills the cache
             for _ in range(opts.repeats):  # alternating between the sources
                 for src in sources:
-                    print(f"{case:<13} {src:<20} {opts.cache}: {run(case, src, cache)}", flush=True)
+                    print(f"{case:<13} {src:<20} {opts.cache}: {run(case, src, cache, opts.all_cpus)}", flush=True)
 
 
 if __name__ == "__main__":
