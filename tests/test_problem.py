@@ -79,3 +79,54 @@ def test_rebuilt_problem_is_not_wrapped_twice():
     problem, (f, _, _), _ = _counting_particle()
     again = dataclasses.replace(problem, name="again")
     assert again.f is problem.f and again.f.__wrapped__ is f
+
+
+def _f(t, q, p, a):
+    return p
+
+
+def _g(t, q, p, lam, a):
+    return jnp.array([-q[1], 0.0, 1.0]) * lam[0]
+
+
+def _phi(t, q, p, a):
+    return jnp.array([-q[1] * p[0] + p[2]])
+
+
+@pytest.mark.parametrize("problem", [L.PartitionedDAE(_f, _g, _phi), L.examples.get_example("knife-edge").problem],
+                         ids=["PartitionedDAE", "NonholonomicSystem"])
+def test_problems_pickle_and_copy(problem):
+    """A problem pickles and copies with the functions as given (jitted callables do not pickle)
+    and is rebuilt with them traced once again: the copy solves as the original does."""
+    import copy
+    import pickle
+
+    import numpy as np
+
+    q0, p0 = (jnp.zeros(3), jnp.array([1.0, 1.0, 0.0])) if isinstance(problem, L.PartitionedDAE) else (
+        jnp.asarray(L.examples.get_example("knife-edge").q0), jnp.asarray(L.examples.get_example("knife-edge").p0))
+    args = None if isinstance(problem, L.PartitionedDAE) else L.examples.get_example("knife-edge").args
+    runs = []
+    for p in (problem, pickle.loads(pickle.dumps(problem)), copy.deepcopy(problem), copy.copy(problem)):
+        assert p.f.__wrapped__ is not None and p.name == problem.name
+        runs.append(L.solve(p, L.LobattoIIIAIIIB(stages=3), (0.0, 0.5), q0, p0, args=args, n_steps=5).q[-1])
+    for q in runs[1:]:
+        np.testing.assert_array_equal(q, runs[0])
+
+
+def test_fingerprint_sees_the_functions_as_given():
+    """Checkpoints identify a problem by its functions as given (a resume compares them), so the
+    jitted wrappers are transparent: a checkpoint written before the functions were wrapped
+    still resumes."""
+    import dataclasses
+
+    from lobattodae._io import fingerprint_callable
+
+    problem = L.PartitionedDAE(_f, _g, _phi)
+    assert fingerprint_callable(problem.f) == fingerprint_callable(_f)
+    unwrapped = object.__new__(L.PartitionedDAE)  # the same fields, never wrapped
+    for field in dataclasses.fields(problem):
+        value = getattr(problem, field.name)
+        object.__setattr__(unwrapped, field.name, getattr(value, "__wrapped__", value))
+    assert unwrapped.f is _f
+    assert fingerprint_callable(problem) == fingerprint_callable(unwrapped)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import dataclasses
 import functools
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -85,8 +86,29 @@ class _TracedOnce:
         self.plain, self.jitted = fn, jax.jit(fn)
         functools.update_wrapper(self, fn)
 
+    @property
+    def __fingerprint_as__(self):
+        """Checkpoints identify the problem by the function as given (``lobattodae._io``):
+        those written before the functions were wrapped still resume."""
+        return self.plain
+
     def __call__(self, *args, **kwargs):
         return (self.plain if _PLAIN_CALLS.get() else self.jitted)(*args, **kwargs)
+
+
+class _PicklableProblem:
+    """Pickling and copying for the problem classes: the state is the dataclass fields with the
+    functions as given (jitted callables do not pickle), and :func:`_traced_once` wraps them
+    again when the copy is built (``__post_init__``)."""
+
+    def __getstate__(self):
+        fields = {f.name for f in dataclasses.fields(self)}
+        return {k: v.plain if isinstance(v, _TracedOnce) else v for k, v in self.__dict__.items() if k in fields}
+
+    def __setstate__(self, state):
+        for k, v in state.items():
+            object.__setattr__(self, k, v)
+        self.__post_init__()
 
 
 def _traced_once(problem, names: tuple[str, ...]) -> None:
@@ -106,7 +128,7 @@ def _traced_once(problem, names: tuple[str, ...]) -> None:
             object.__setattr__(problem, name, _TracedOnce(fn))
 
 @dataclass(frozen=True, eq=False)
-class PartitionedDAE:
+class PartitionedDAE(_PicklableProblem):
     r"""A partitioned index-2 differential-algebraic equation
 
     .. math::
@@ -161,7 +183,7 @@ class PartitionedDAE:
         _traced_once(self, ("f", "g", "phi", "f_and_g", "position_constraint"))
 
 
-class _HamiltonianMixin:
+class _HamiltonianMixin(_PicklableProblem):
     r"""f, g, φ of a nonholonomic Hamiltonian system with linear constraints μ(q) q' = 0:
 
     .. math::

@@ -197,6 +197,9 @@ def _callable_token(fn: Any, seen: set[int]) -> str:
         return "recursive:" + _qualname(fn)
     seen = seen | {id(fn)}
     parts: list[str] = []
+    stand_in = getattr(fn, "__fingerprint_as__", None)
+    if stand_in is not None:  # a wrapper that asks to be taken for what it wraps
+        return _callable_token(stand_in, seen)
     if inspect.ismethod(fn):
         parts += ["method", _callable_token(fn.__func__, seen), _value_token(fn.__self__, seen)]
     elif isinstance(fn, functools.partial):
@@ -246,7 +249,9 @@ def fingerprint_callable(fn: Any) -> str:
     :func:`functools.partial` the function and the bound arguments; for dataclass instances
     (e.g. a problem holding ``f``, ``g``, ``phi``) the type name and all fields, callables
     among them fingerprinted recursively; ``jax.jit`` and ``functools.wraps`` wrappers are
-    followed to the wrapped function; other callables contribute their type or name only.
+    followed to the wrapped function; an object with a ``__fingerprint_as__`` attribute is
+    fingerprinted as that attribute's value (the library's jitted problem functions: as the
+    function given); other callables contribute their type or name only.
 
     Best effort, not a proof of equality: the digest depends on the Python version (bytecode
     changes between versions), does not see library code, mutable objects the function reads,
