@@ -22,7 +22,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from benchmarks.testset import PROBLEMS, TestProblem, error  # noqa: E402
-from benchmarks.testset import andrews, caraxis, crank, fekete, fourbar, knife_edge, rolling_disc, servo_sleigh, sleigh, vertical_disk  # noqa: E402,E501
+from benchmarks.testset import andrews, caraxis, crank, fekete, fourbar, knife_edge, rolling_disc, servo_sleigh, sleigh, vertical_disk  # noqa: E402
 
 NAMES = list(PROBLEMS)
 
@@ -234,7 +234,7 @@ def test_fourbar_reference_and_conversion():
     """SymPy's own equations (System.form_eoms) reproduce the stored reference at t = 1
     (DOP853), the initial state closes the loop, and the converted model's momenta and
     constraints agree with SymPy's speeds and loop closure along the reference."""
-    t, q, p, u = fourbar.compute_reference("DOP853", 1e-13, t_eval=(1.0,))
+    _, q, p, u = fourbar.compute_reference("DOP853", 1e-13, t_eval=(1.0,))
     np.testing.assert_allclose(q, np.array(fourbar.Q_REF)[:1], rtol=0, atol=1e-12)
     np.testing.assert_allclose(p, np.array(fourbar.P_REF)[:1], rtol=0, atol=1e-12)
     mdl, s = fourbar.model(), fourbar.build()

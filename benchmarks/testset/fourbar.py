@@ -56,8 +56,15 @@ T_REF = (1.0, 2.0, 5.0)
 def system():
     """The SymPy model: ``(system, symbols)``; its equations not yet formed."""
     import sympy as sp
-    from sympy.physics.mechanics import (PinJoint, Point, ReferenceFrame, RigidBody, System, dynamicsymbols,
-                                         inertia)
+    from sympy.physics.mechanics import (
+        PinJoint,
+        Point,
+        ReferenceFrame,
+        RigidBody,
+        System,
+        dynamicsymbols,
+        inertia,
+    )
 
     q = list(dynamicsymbols("q1:4"))
     u = list(dynamicsymbols("u1:4"))
@@ -89,7 +96,7 @@ def system():
     sys_.u_ind, sys_.u_dep = u[:1], u[1:]
     sys_.apply_uniform_gravity(-g * N.y)
     sys_.validate_system()
-    return sys_, dict(q=q, u=u, params=list(par), N=N)
+    return sys_, {"q": q, "u": u, "params": list(par), "N": N}
 
 
 @functools.cache

@@ -119,13 +119,14 @@ def _traced_once(problem, names: tuple[str, ...]) -> None:
     doubling's vector fields, the projection). Called plainly, every place traces the function
     again, with its derivatives; a jitted function is traced once per input signature, and every
     place reuses that trace and its lowering. XLA inlines the calls, so the compiled program
-    and its speed are the same (``benchmarks/RESULTS.md``, 2026-11-28 18:30: Andrews' squeezer
+    and its speed are the same (``benchmarks/RESULTS.md``, 2026-11-28 18:25: Andrews' squeezer
     traces in 0.50 instead of 1.05 s and lowers in 0.34 instead of 0.50 s).
     """
     for name in names:
         fn = getattr(problem, name, None)
         if fn is not None and not isinstance(fn, _TracedOnce):
             object.__setattr__(problem, name, _TracedOnce(fn))
+
 
 @dataclass(frozen=True, eq=False)
 class PartitionedDAE(_PicklableProblem):
@@ -192,7 +193,7 @@ class _HamiltonianMixin(_PicklableProblem):
     """
 
     #: The functions the integrator evaluates (traced once per signature: :func:`_traced_once`).
-    EVALUATED = ("f", "g", "phi", "f_and_g")
+    _EVALUATED = ("f", "g", "phi", "f_and_g")
 
     def hamiltonian(self, t, q, p, args):  # pragma: no cover - overridden
         raise NotImplementedError
@@ -254,7 +255,7 @@ class NonholonomicSystem(_HamiltonianMixin):
                 ("constraint_matrix", "mu(t, q, args) -> (m, n)"),
             ),
         )
-        _traced_once(self, _HamiltonianMixin.EVALUATED)
+        _traced_once(self, _HamiltonianMixin._EVALUATED)
 
 
 @dataclass(frozen=True, eq=False)
@@ -292,7 +293,7 @@ class MechanicalSystem(_HamiltonianMixin):
                 ("constraint_matrix", "mu(t, q, args) -> (m, n)"),
             ),
         )
-        _traced_once(self, _HamiltonianMixin.EVALUATED)
+        _traced_once(self, _HamiltonianMixin._EVALUATED)
 
     def hamiltonian(self, t, q, p, args):
         """The energy ``H = ½ pᵀ M(q)⁻¹ p + V(q)``.
