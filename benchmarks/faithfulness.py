@@ -2,7 +2,9 @@
 
 For every problem of ``benchmarks/testset`` and every (s, rtol) of the grid, ``solve`` with
 ``rtol = atol`` and ``t_eval`` at the reference times; the error there (relative to 1 + |y|,
-``testset.error``) is compared with ``max(rtol, the reference's accuracy)``. The contract:
+``testset.error``) is compared with ``max(rtol, the reference's accuracy)``; and, since rows
+stepped onto change the steps, a second ``solve`` without ``t_eval`` whose end point is
+compared the same way (``end_error``, where the interval's end is a reference time). The contract:
 error ≤ 30 × that on every setting, a log-log slope of error against rtol in [0.8, 1.2]
 (fitted where the error is above 30 × the reference's accuracy and the run did not warn of
 round-off: below either floor the error cannot follow rtol), and no run that reports
@@ -62,8 +64,14 @@ def run_one(entry, s: int, rtol: float) -> dict:
     seconds = time.perf_counter() - start
     err = error(entry, sol.t, sol.q, sol.p) if sol.success and len(sol.t) == len(t_ref) else math.inf
     floor = max(rtol, entry.ref_accuracy)
+    # the end point of a plain run: rows stepped onto change the steps, and the contract covers both
+    end = L.solve(setup.problem, L.LobattoIIIAIIIB(stages=s), setup.t_span, setup.q0, setup.p0, args=setup.args,
+                  rtol=rtol, atol=rtol, save_every="final", throw=False)
+    end_err = (error(entry, end.t[-1], end.q[-1], end.p[-1]) if end.success else math.inf) if t1 in t_ref else math.nan
     return {
         "problem": entry.name, "s": s, "rtol": rtol, "error": err, "ratio": err / floor,
+        "end_error": end_err, "end_ratio": end_err / floor,
+        "end_warned": bool(roundoff_may_exceed(int(end.stats["n_roundoff_limited"]), rtol)),
         "status": int(sol.result), "success": bool(sol.success), "message": sol.message,
         "n_steps": int(sol.stats["n_steps"]), "n_rejected": int(sol.stats["n_rejected"]),
         "max_constraint_residual": float(sol.stats["max_constraint_residual"]), "seconds": seconds,
@@ -91,6 +99,12 @@ def verdict(rows: list[dict]) -> list[str]:
     for r in rows:
         if r["success"] and r["ratio"] > FAITHFUL and not r.get("roundoff_warned", False):
             bad.append(f"{r['problem']} s={r['s']} rtol={r['rtol']:g}: error {r['error']:.2e} = {r['ratio']:.0f} x")
+        # the end point of the plain run (rows from before 2026-11-28 20:15 lack it; JSON keeps NaN
+        # and inf as strings, which float() reads back)
+        end = float(r.get("end_ratio", "nan"))
+        if math.isfinite(end) and end > FAITHFUL and not r.get("end_warned", False):
+            bad.append(f"{r['problem']} s={r['s']} rtol={r['rtol']:g}: end point without t_eval rows "
+                       f"{float(r['end_error']):.2e} = {end:.0f} x")
         if r["success"] and r["error"] > NEVER * r["rtol"] and r["ratio"] > FAITHFUL:
             bad.append(f"{r['problem']} s={r['s']} rtol={r['rtol']:g}: SUCCESS with error > {NEVER:g} x rtol")
     return bad
@@ -125,6 +139,11 @@ def summary(rows: list[dict]) -> str:
             top = max(mine, key=lambda r: r["ratio"])
             lines.append(f"{len(mine)} runs {'warned (round-off)' if warned else 'did not warn'}: largest "
                          f"{top['ratio']:.2f} x ({top['problem']} s={top['s']} rtol={top['rtol']:g})")
+    ends = [r for r in rows if not r.get("end_warned", False) and math.isfinite(float(r.get("end_ratio", "nan")))]
+    if ends:
+        top = max(ends, key=lambda r: float(r["end_ratio"]))
+        lines.append(f"{len(ends)} end points of plain runs that did not warn: largest {float(top['end_ratio']):.2f} x "
+                     f"({top['problem']} s={top['s']} rtol={top['rtol']:g})")
     return "\n".join(lines)
 
 
