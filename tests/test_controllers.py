@@ -51,7 +51,8 @@ def _pi_state(c: "L.PIController", h, order):
     f = jnp.float64
     return AdaptiveState(t=f(0.0), h=f(h), t0=f(0.0), t_end=f(1.0), err_prev=f(1.0),
                          h_rejected=f(0.0), err_rejected=f(jnp.inf), rtol=f(0.0), atol=f(1.0), max_step=f(jnp.inf),
-                         order=f(order), span=f(1.0), n_rejected=jnp.asarray(0, jnp.int32), n_floored=jnp.asarray(0, jnp.int32))
+                         order=f(order), span=f(1.0), n_rejected=jnp.asarray(0, jnp.int32), n_floored=jnp.asarray(0, jnp.int32),
+                         h_last=f(0.0), err_last=f(0.0), checking=jnp.asarray(False), n_checked=jnp.asarray(0, jnp.int32), radius=f(6.0))
 
 
 def _attempt(c, st, err_of_h):

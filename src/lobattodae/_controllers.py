@@ -200,6 +200,11 @@ class AdaptiveState(NamedTuple):
     span: jax.Array  # |t1 - t0| of the requested interval (the unit of the error per unit step)
     n_rejected: jax.Array  # int32
     n_floored: jax.Array  # int32: accepted steps that passed only because of ROUNDOFF_FLOOR
+    h_last: jax.Array  # the last accepted step's size and unfloored scaled error (0, 0 before the first)
+    err_last: jax.Array
+    checking: jax.Array  # bool: the last attempt was rejected to check its estimate on a shorter step
+    n_checked: jax.Array  # int32: such checks
+    radius: jax.Array  # the tableau's richardson_radius (LobattoPair)
 
     @property
     def rejected(self):
@@ -289,6 +294,23 @@ class PIController(_TimeAndEnd):
     only the compared whole step did not). Factors in
     ``[1, hysteresis]`` keep h (and the reused Jacobians, see ``H_CHANGE_REFRESH``).
 
+    **Large steps** (``check_large_steps=True``, the default). Richardson's divisor rests on the
+    expansion ``C h^(k+1)`` with C nearly constant over the step. A step long against the scale
+    on which the solution changes can pass with an estimate far too small (the four-bar linkage
+    over its crank's turning point: one step of h = 0.30, whole and halved results whose errors
+    differ 28 times where the divisor assumes 1023, ended 47 × rtol off). Such a step shows in
+    the error constant ``err / h^k``: from the last step the controller chose (and whose error lay
+    above Newton's noise) it grows by ``e^(|hμ|)`` for a solution that changes like ``e^(μ t)``.
+    Where that growth says ``|hμ|`` exceeds the tableau's
+    :attr:`~lobattodae.LobattoPair.richardson_radius` (measured over the distance between the two
+    steps' midpoints), and the undivided difference of the two results fails the test (so that
+    the divisor decides), the attempt is rejected and retried with h/2; the retry measures the
+    power of h by which the error fell, ``k_obs`` in ``[1, k]``, and divides by ``2^k_obs − 1``
+    instead of ``2^k − 1``. Where the expansion held (k_obs = k) nothing changes and the step
+    may grow again at once. Checks are counted (``Solution.stats["n_checked"]``, also in
+    ``n_rejected``). Nothing in the test is fitted to problems: the radius is the one of the
+    linear theory that the estimate's share already uses (:mod:`~lobattodae._doubling`).
+
     **The cheap estimate** (``estimate="embedded"``, opt-in) costs no extra solve: the
     difference to the embedded order-(s-1) formula of the same stages, ``O(h^s)``
     (:meth:`~lobattodae.LobattoIIIAIIIB.step`), with the tolerances mapped to
@@ -300,7 +322,8 @@ class PIController(_TimeAndEnd):
 
     Every field is validated on construction: ``0 < safety ≤ 1``, ``0 < fac_min < 1 <
     fac_max``, ``beta1 > 0``, ``beta2 ≥ 0``, ``hysteresis ≥ 1``, ``estimate`` one of
-    :data:`ESTIMATES`, ``c_tol > 0`` (or None) and only with ``estimate="embedded"``.
+    :data:`ESTIMATES`, ``c_tol > 0`` (or None) and only with ``estimate="embedded"``,
+    ``check_large_steps`` a bool.
 
     Parameters
     ----------
@@ -318,6 +341,9 @@ class PIController(_TimeAndEnd):
     c_tol : float, optional
         ``estimate="embedded"`` only: the constant of the tolerance map (default: ``C_TOL``
         for the method's s).
+    check_large_steps : bool, optional
+        Check the estimate of steps long against the solution's scale on a step of half the
+        size (default True; step doubling only, see "Large steps").
 
     Raises
     ------
@@ -334,6 +360,7 @@ class PIController(_TimeAndEnd):
     hysteresis: float = 1.2
     estimate: str = "doubling"
     c_tol: float | None = None
+    check_large_steps: bool = True
 
     def __post_init__(self):
         def check(name, ok, rule):
@@ -347,6 +374,9 @@ class PIController(_TimeAndEnd):
         check("beta1", lambda v: v > 0, "beta1 > 0")
         check("beta2", lambda v: v >= 0, "beta2 ≥ 0")
         check("hysteresis", lambda v: v >= 1, "hysteresis ≥ 1 (1 switches it off)")
+        if not isinstance(self.check_large_steps, bool):
+            raise ValueError("PIController: check_large_steps must be True (the default) or False; "
+                             f"got check_large_steps={self.check_large_steps!r}.")
         if self.estimate not in ESTIMATES:
             raise ValueError(
                 "PIController: estimate must be 'doubling' (the step's own local error by step doubling, the "
@@ -439,6 +469,9 @@ class PIController(_TimeAndEnd):
             order=jnp.asarray(float(k), dtype), n_rejected=jnp.asarray(0, jnp.int32),
             n_floored=jnp.asarray(0, jnp.int32),
             span=jnp.abs(t1 - t0).astype(dtype),
+            h_last=jnp.asarray(0.0, dtype), err_last=jnp.asarray(0.0, dtype),
+            checking=jnp.asarray(False), n_checked=jnp.asarray(0, jnp.int32),
+            radius=jnp.asarray(method.pair.richardson_radius, dtype),
         )
 
     def proposal(self, st: AdaptiveState):
@@ -508,15 +541,18 @@ class PIController(_TimeAndEnd):
         err = jnp.where(jnp.any((scale == 0) & (report.error != 0)), jnp.inf, err)
         usable = report.ok & jnp.isfinite(err)
         err = jnp.where(usable, err, jnp.inf)
-        accept = err <= 1.0
+        check, confirmed, err = self._asymptotics(st, report, err, k)
+        accept = (err <= 1.0) & ~check
         safe_err = jnp.maximum(err, 1e-10)
         grow = self.safety * safe_err ** (-self.beta1 / k) * st.err_prev ** (self.beta2 / k)
-        grow = jnp.clip(grow, self.fac_min, jnp.where(st.rejected, 1.0, self.fac_max))
+        # no growth right after a rejection, unless the attempt before only checked its estimate and it held
+        grow = jnp.clip(grow, self.fac_min, jnp.where(st.rejected & ~confirmed, 1.0, self.fac_max))
         grow = jnp.where((grow >= 1.0) & (grow <= self.hysteresis), 1.0, grow)
         shrink = jnp.where(usable, jnp.clip(self.safety * safe_err ** (-1.0 / self._observed_order(st, report, err, k)),
                                             self.fac_min, 0.9), report.retry)
         # the step-size policy is a heuristic, not part of the model: derivatives follow the step
         # sequence the run chose (only the clipping to the end of the interval moves with t_span)
+        shrink = jnp.where(check, 0.5, shrink)
         h_new = report.h * jax.lax.stop_gradient(jnp.where(accept, grow, shrink))
         # a step the loop shortened to end on an output time (t_eval rows stepped onto) is not the
         # step size the error asked for: after it the run resumes its own proposal (unless the
@@ -527,17 +563,52 @@ class PIController(_TimeAndEnd):
         h_new = jnp.sign(h_new) * jnp.minimum(jnp.abs(h_new), st.max_step)
         reaches_end = report.h == st.t_end - report.t  # bitwise: the proposal clipped it so
         t = jnp.where(accept, jnp.where(reaches_end, st.t_end, report.t + report.h), st.t)
+        # the error constant that the check of large steps compares with: of the last step the controller
+        # chose whose error was measured (above Newton's noise)
+        measured = accept & ~shortened & (err > 0)
         new = st._replace(
             t=t, h=h_new,
             err_prev=jnp.where(accept & ~shortened, jnp.maximum(err, 1e-4), st.err_prev),
             h_rejected=jnp.where(accept, 0.0, report.h), err_rejected=jnp.where(accept, jnp.inf, err),
             n_rejected=st.n_rejected + (~accept).astype(jnp.int32),
             n_floored=st.n_floored + (accept & floored).astype(jnp.int32),
+            h_last=jnp.where(measured, report.h, st.h_last), err_last=jnp.where(measured, err, st.err_last),
+            checking=check, n_checked=st.n_checked + check.astype(jnp.int32),
         )
         finished = accept & (t == st.t_end)
         small = ~finished & _too_small(h_new, t, st.t0, st.t_end)
         result = jnp.where(small, Result.STEP_SIZE_TOO_SMALL, Result.SUCCESSFUL).astype(jnp.int32)
         return accept, new, result
+
+    def _asymptotics(self, st: AdaptiveState, report: StepReport, err, k):
+        """Whether an attempt is to be checked on a step of half the size, whether it is the
+        retry of a check that found the expansion holding, and the error (corrected on a retry
+        where it did not); see the class docstring, "Large steps".
+
+        An attempt is checked when its error constant ``err / h^k`` (per unit step) grew by more
+        than ``e^r`` over the distance between its midpoint and that of the last measured step,
+        in units of h (r the tableau's ``richardson_radius``), and the difference of the two
+        results alone fails the test (``err (2^k - 1) > 1``: the divisor decides). Its retry
+        measures the power of h by which the error fell between the two attempts, ``k_obs`` in
+        ``[1, k]``, and divides the difference by ``2^k_obs - 1`` instead of ``2^k - 1``.
+        """
+        no = jnp.asarray(False)
+        if self.estimate != "doubling" or not self.check_large_steps:
+            return no, no, err
+        # decisions about the step sequence, like the step-size rule: no derivatives through them
+        e, st = jax.lax.stop_gradient((err, st))
+        divisor = 2.0**k - 1.0
+        h, h_rejected = jnp.abs(jax.lax.stop_gradient(report.h)), jnp.abs(st.h_rejected)
+        retry = st.checking & (h < h_rejected)
+        fell = jnp.log(st.err_rejected / jnp.maximum(e, 1e-300)) / jnp.log(jnp.where(retry, h_rejected / h, 2.0))
+        observed = jnp.where(jnp.isfinite(fell), jnp.clip(fell, 1.0, k), k)
+        e = jnp.where(retry, e * divisor / (2.0**observed - 1.0), e)
+        h_last = jnp.abs(st.h_last)
+        predicted = st.err_last * (h / jnp.where(h_last == 0, 1.0, h_last)) ** k
+        growth = jnp.log(e / jnp.maximum(predicted, 1e-300))
+        check = (~retry & (h_last > 0) & (e <= 1.0) & (e * divisor > 1.0)
+                 & (growth > st.radius * 0.5 * (h_last + h) / h))
+        return check, retry & (observed >= k), e
 
     @staticmethod
     def _observed_order(st: AdaptiveState, report: StepReport, err, k):

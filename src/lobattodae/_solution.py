@@ -44,6 +44,8 @@ STATS = {
                  "unsymmetric, so 0 for a reversible run; None for other step-size rules",
     "n_roundoff_limited": "PIController (step doubling): accepted steps whose error passed the test only because no "
                           "step is asked for less than its round-off (ROUNDOFF_FLOOR); None for other step-size rules",
+    "n_checked": "PIController (step doubling): attempts rejected to check their estimate on a step of half the "
+                 "size (counted in n_rejected; PIController(check_large_steps)); None for other step-size rules",
     "failed_step": "index of the failed step, or None",
     "recoveries": "failed steps retried as substeps (max_recoveries, constant steps)",
     "compile_and_run_time": "wall time of the integration loop, compilation included (s)",
@@ -214,6 +216,7 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         "h": opt.h,
         "n_clamped": int(state.controller.n_clamped) if isinstance(opt.controller, ReversibleStepSize) else None,
         "n_roundoff_limited": floored,
+        "n_checked": int(state.controller.n_checked) if isinstance(opt.controller, PIController) else None,
         "failed_step": failed_step,
         "recoveries": run.recoveries,
         "compile_and_run_time": elapsed,

@@ -88,7 +88,9 @@ reused inverse Jacobian flattened, ``stepper.jacobian.inverse`` of shape (N²,) 
 (N, N).  Version 8 adds ``controller.n_floored`` to the state of error-controlled runs.
 Version 9 keeps step doubling's two inverse Jacobians stacked in the state of
 error-controlled runs, ``stepper.jacobians.inverse`` of shape (2, N²).  Version 10 adds the
-round-off level Newton measured, ``stepper.jacobian.floor`` (``stepper.jacobians.floor``).)
+round-off level Newton measured, ``stepper.jacobian.floor`` (``stepper.jacobians.floor``).
+Version 11 adds the check of large steps to the PI controller's state: ``controller.h_last``,
+``controller.err_last``, ``controller.checking``, ``controller.n_checked``.)
 
 Atomic writes
 -------------
@@ -179,12 +181,12 @@ __all__ = [
 ]
 
 FORMAT = "lobattodae-checkpoint"
-VERSION = 10
+VERSION = 11
 
 # schema_fingerprint(<the loop's State templates>) for the current VERSION: the States of constant
 # steps and of error control together; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "511850a31100f8c8"  # schema_fingerprint of the States (constant, PI) of VERSION
+STATE_FINGERPRINT: str | None = "71ef72db1f56092d"  # schema_fingerprint of the States (constant, PI) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"
