@@ -100,6 +100,56 @@ def test_a_step_beyond_the_stability_limit_is_left_in_few_attempts():
     assert rejected <= 6 and float(h) > 1e-4
 
 
+def _measured(c, h_last, err_last):
+    """A PI state after an accepted step of size ``h_last`` with error ``err_last``, the next
+    attempt proposed with the same size (k = 8, s = 5: Richardson's divisor 255, radius 5.3)."""
+    f = jnp.float64
+    return _pi_state(c, h_last, 8.0)._replace(h_last=f(h_last), err_last=f(err_last), radius=f(5.3))
+
+
+def test_a_step_whose_error_constant_jumps_is_checked_on_half_the_step():
+    """The error constant err / h^k of an attempt 0.5 grew e^6.2 from the last step's 1e-3 at the
+    same size (|hμ| = 6.2 > the radius 5.3) and the undivided difference (0.5 · 255) fails the
+    test: rejected although err ≤ 1, retried with h/2. A retry whose error fell by 2^k confirms
+    Richardson: accepted as it is, and the step may grow at once."""
+    c = L.PIController()
+    h, (accept, st, result) = _attempt(c, _measured(c, 0.1, 1e-3), lambda h: 0.5 * (h / 0.1) ** 8)
+    assert not bool(accept) and bool(st.checking) and int(st.n_checked) == 1 and int(st.n_rejected) == 1
+    assert float(st.h) == pytest.approx(0.05) and int(result) == 0
+    h, (accept, st, _) = _attempt(c, st, lambda h: 0.5 * (h / 0.1) ** 8)
+    assert bool(accept) and not bool(st.checking)
+    np.testing.assert_allclose(float(st.err_last), 0.5 / 256, rtol=1e-12)  # not corrected
+    assert float(st.h) > 0.05  # grows: the check held
+    # the same error without the jump (the last step's constant 0.5 too): no check
+    _, (accept, st, _) = _attempt(c, _measured(c, 0.1, 0.5), lambda h: 0.5 * (h / 0.1) ** 8)
+    assert bool(accept) and int(st.n_checked) == 0
+    # nor where the undivided difference passes (err · 255 ≤ 1), or when switched off
+    _, (accept, st, _) = _attempt(c, _measured(c, 0.1, 1e-6), lambda h: 3e-3)
+    assert bool(accept) and int(st.n_checked) == 0
+    off = L.PIController(check_large_steps=False)
+    _, (accept, st, _) = _attempt(off, _measured(off, 0.1, 1e-3), lambda h: 0.5)
+    assert bool(accept) and int(st.n_checked) == 0
+
+
+def test_a_check_that_finds_the_error_falling_slowly_corrects_the_divisor():
+    """The retry's error fell only by 2^2 between h and h/2 (the whole step's error 4 times the
+    halves', not 2^8): its difference is divided by 2^2 − 1 instead of 2^8 − 1, so an estimate of
+    0.1 is 0.1 · 255 / 3 = 8.5: rejected, and the step shrinks by the observed power."""
+    c = L.PIController()
+    err_of_h = lambda h: 0.4 * (h / 0.1) ** 2  # noqa: E731
+    _, (accept, st, _) = _attempt(c, _measured(c, 0.1, 1e-3), err_of_h)
+    assert not bool(accept) and bool(st.checking)
+    h, (accept, st, _) = _attempt(c, st, err_of_h)
+    assert not bool(accept) and not bool(st.checking) and int(st.n_checked) == 1
+    np.testing.assert_allclose(float(st.err_rejected), 0.1 * 255 / 3, rtol=1e-10)
+    assert float(st.h) < 0.5 * float(h)
+
+
+def test_check_large_steps_is_a_bool():
+    with pytest.raises(ValueError, match="check_large_steps must be True"):
+        L.PIController(check_large_steps=1)
+
+
 def _shortened(c, st, h, err):
     """An attempt that the loop shortened to ``h`` (to end on an output time), with error ``err``."""
     z = jnp.zeros(2)

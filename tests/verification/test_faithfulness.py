@@ -67,6 +67,29 @@ def test_the_squeezer_stays_faithful_where_richardson_is_outside_its_range():
     assert r["ratio"] <= F.FAITHFUL, r
 
 
+def test_the_four_bar_step_over_its_turning_point_is_checked():
+    """The hold-out four-bar linkage at s = 6, rtol 1e-4, without t_eval rows: one step of
+    h = 0.30 over the crank's turning point passed with Richardson's divisor 1023 where the whole
+    and halved steps' errors differ 28 times, and the end point was 47 x off. The check of large
+    steps (PIController(check_large_steps), on by default) retries it with h/2 (measured 0.29 x,
+    5 checks); switched off, the defect is back."""
+    from benchmarks.testset import error
+
+    entry = PROBLEMS["fourbar"]
+    setup = entry.build()
+
+    def end_ratio(check):
+        sol = L.solve(setup.problem, L.LobattoIIIAIIIB(stages=6), setup.t_span, setup.q0, setup.p0, args=setup.args,
+                      rtol=1e-4, atol=1e-4, save_every="final", controller=L.PIController(check_large_steps=check))
+        assert sol.success
+        return error(entry, sol.t[-1], sol.q[-1], sol.p[-1]) / 1e-4, sol.stats["n_checked"]
+
+    ratio, checked = end_ratio(True)
+    assert ratio <= F.FAITHFUL and checked >= 1
+    ratio, checked = end_ratio(False)
+    assert ratio > F.FAITHFUL and checked == 0
+
+
 def test_the_verdict_lists_warned_runs_apart_but_never_above_1000x():
     """The contract as ``F.verdict`` reads it: above 30 x a run that did not warn is a violation,
     one that warned of round-off is not (it said so), and above 1000 x rtol both are."""
@@ -106,8 +129,7 @@ def test_faithfulness_grid(name):
     """The contract over the whole grid: every run succeeds, every error within 30 × max(rtol,
     the reference's accuracy) unless the run warned that rtol asks for less than the steps'
     round-off, none above 1000 × rtol, at the reference times and at the end of a plain run
-    (``F.verdict``; the four-bar linkage fails it at s = 6, rtol 1e-4: its end point is 47 × off,
-    an open defect, benchmarks/RESULTS.md 2026-11-28 19:00). Then the slope band 0.8-1.2: missed
+    (``F.verdict``). Then the slope band 0.8-1.2: missed
     where errors stay far below rtol (20 of 48 (problem, s) pairs in the stored grid), reported
     as an expected failure, not hidden."""
     rows, slopes = F.grid([name], F.STAGES, F.RTOLS)
