@@ -129,6 +129,18 @@ def test_a_step_whose_error_constant_jumps_is_checked_on_half_the_step():
     off = L.PIController(check_large_steps=False)
     _, (accept, st, _) = _attempt(off, _measured(off, 0.1, 1e-3), lambda h: 0.5)
     assert bool(accept) and int(st.n_checked) == 0
+    # nor where step doubling's share was the linear theory's, not Richardson's, and the
+    # difference itself passes (a settling sleigh's damped mode: share 0.36 of a difference 0.83)
+    z = jnp.zeros(2)
+    st = _measured(c, 0.1, 1e-3)
+    e = jnp.full(2, 0.3 * 0.1)
+    report = StepReport(jnp.asarray(True), jnp.asarray(0), st.t, jnp.float64(0.1), z, z, e, z[:1], z[:1], z[:1],
+                        share=jnp.float64(0.36))
+    accept, st, _ = c.adapt(st, None, None, report)
+    assert bool(accept) and int(st.n_checked) == 0
+    # with Richardson's share the same error is checked
+    accept, st, _ = c.adapt(_measured(c, 0.1, 1e-3), None, None, report._replace(share=jnp.float64(1 / 255)))
+    assert not bool(accept) and int(st.n_checked) == 1
 
 
 def test_a_check_that_finds_the_error_falling_slowly_corrects_the_divisor():

@@ -90,6 +90,7 @@ class StepReport(NamedTuple):
     p1: jax.Array
     lam1: jax.Array
     retry: Any = RETRY_FACTOR  # a failed step's size factor for the next attempt (StepInfo.retry)
+    share: Any = None  # step doubling: the share of the two results' difference that error is (StepInfo.share)
 
 
 def _rms(x):
@@ -303,11 +304,13 @@ class PIController(_TimeAndEnd):
     above Newton's noise) it grows by ``e^(|hμ|)`` for a solution that changes like ``e^(μ t)``.
     Where that growth says ``|hμ|`` exceeds the tableau's
     :attr:`~lobattodae.LobattoPair.richardson_radius` (measured over the distance between the two
-    steps' midpoints), and the undivided difference of the two results fails the test (so that
-    the divisor decides), the attempt is rejected and retried with h/2; the retry measures the
-    power of h by which the error fell, ``k_obs`` in ``[1, k]``, and divides by ``2^k_obs − 1``
-    instead of ``2^k − 1``. Where the expansion held (k_obs = k) nothing changes and the step
-    may grow again at once. Checks are counted (``Solution.stats["n_checked"]``, also in
+    steps' midpoints), and the difference of the two results itself fails the test (so that the
+    divisor decides: Richardson's, or the smaller ratio of the linear theory where the difference
+    lies along modes the step does not resolve, :mod:`~lobattodae._doubling`), the attempt is
+    rejected and retried with h/2; the retry measures the power of h by which the error fell,
+    ``k_obs`` in ``[1, k]``, and divides by ``2^k_obs − 1`` where that is less than the divisor
+    it used. Where the expansion held (k_obs = k) nothing changes and the step may grow again at
+    once. Checks are counted (``Solution.stats["n_checked"]``, also in
     ``n_rejected``). Nothing in the test is fitted to problems: the radius is the one of the
     linear theory that the estimate's share already uses (:mod:`~lobattodae._doubling`).
 
@@ -588,25 +591,28 @@ class PIController(_TimeAndEnd):
         An attempt is checked when its error constant ``err / h^k`` (per unit step) grew by more
         than ``e^r`` over the distance between its midpoint and that of the last measured step,
         in units of h (r the tableau's ``richardson_radius``), and the difference of the two
-        results alone fails the test (``err (2^k - 1) > 1``: the divisor decides). Its retry
-        measures the power of h by which the error fell between the two attempts, ``k_obs`` in
-        ``[1, k]``, and divides the difference by ``2^k_obs - 1`` instead of ``2^k - 1``.
+        results itself fails the test (``err / share > 1``, ``report.share`` the share of the
+        difference that the estimate is, Richardson's ``1 / (2^k - 1)`` or the larger one of
+        :meth:`~lobattodae._doubling.StepDoubling._share`: the divisor decides). Its retry measures the power of h by which
+        the error fell between the two attempts, ``k_obs`` in ``[1, k]``, and divides the
+        difference by ``2^k_obs - 1`` where that is less than the divisor it used.
         """
         no = jnp.asarray(False)
         if self.estimate != "doubling" or not self.check_large_steps:
             return no, no, err
         # decisions about the step sequence, like the step-size rule: no derivatives through them
         e, st = jax.lax.stop_gradient((err, st))
-        divisor = 2.0**k - 1.0
+        share = 1.0 / (2.0**k - 1.0) if report.share is None else jax.lax.stop_gradient(report.share)
         h, h_rejected = jnp.abs(jax.lax.stop_gradient(report.h)), jnp.abs(st.h_rejected)
         retry = st.checking & (h < h_rejected)
         fell = jnp.log(st.err_rejected / jnp.maximum(e, 1e-300)) / jnp.log(jnp.where(retry, h_rejected / h, 2.0))
         observed = jnp.where(jnp.isfinite(fell), jnp.clip(fell, 1.0, k), k)
-        e = jnp.where(retry, e * divisor / (2.0**observed - 1.0), e)
+        # the observed ratio of the whole and halved steps' errors where it is below the divisor used
+        e = jnp.where(retry, e * jnp.maximum(1.0, 1.0 / (share * (2.0**observed - 1.0))), e)
         h_last = jnp.abs(st.h_last)
         predicted = st.err_last * (h / jnp.where(h_last == 0, 1.0, h_last)) ** k
         growth = jnp.log(e / jnp.maximum(predicted, 1e-300))
-        check = (~retry & (h_last > 0) & (e <= 1.0) & (e * divisor > 1.0)
+        check = (~retry & (h_last > 0) & (e <= 1.0) & (e / share > 1.0)
                  & (growth > st.radius * 0.5 * (h_last + h) / h))
         return check, retry & (observed >= k), e
 

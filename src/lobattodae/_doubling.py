@@ -211,7 +211,8 @@ class StepDoubling:
         fields = jax.vmap(lambda q, p, lam: jnp.concatenate(vector_field(problem, t0 + h, q, p, lam, args)))(
             qs[::2], ps[::2], lams[::2])
         slopes = fields[1] - fields[0]
-        error = self._share(h, diff, slopes, y1) * jnp.sign(diff) * jnp.maximum(jnp.abs(diff) - noise, 0.0)
+        share = self._share(h, diff, slopes, y1)
+        error = share * jnp.sign(diff) * jnp.maximum(jnp.abs(diff) - noise, 0.0)
         failed = infos.result != Result.SUCCESSFUL
         result = jnp.where(jnp.any(failed), infos.result[jnp.argmax(failed)], Result.SUCCESSFUL).astype(jnp.int32)
         first, second = (jax.tree_util.tree_map(lambda x, k=k: x[k], infos.dense) for k in (1, 2))
@@ -227,6 +228,7 @@ class StepDoubling:
             # only the compared whole step failed: a step of half the size is a solve that has just
             # converged (the first half), so the retry need not shrink further
             retry=jnp.where(failed[0] & ~jnp.any(failed[1:]), 0.5, jnp.min(infos.retry)),
+            share=share,
         )
         new_state = DoublingState(half, jacobians, h_jacobians, jax.tree_util.tree_map(lambda x: x[0], histories))
         return q1, p1, lam1, info, new_state

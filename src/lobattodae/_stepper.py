@@ -134,6 +134,9 @@ class StepInfo(NamedTuple):
         When the step failed: the factor by which its size is to shrink for the next attempt
         (:data:`RETRY_FACTOR`, or a larger one where the stepper knows a shorter solve to
         converge, see :class:`~lobattodae._doubling.StepDoubling`).
+    share : jax.Array or None
+        Step doubling: the share of the two results' difference that ``error`` is (Richardson's
+        ``1 / (2^(2s-2) - 1)`` or larger, see :mod:`~lobattodae._doubling`); None otherwise.
     """
 
     result: jax.Array
@@ -145,6 +148,7 @@ class StepInfo(NamedTuple):
     error: jax.Array  # (2n,) local error estimate of (q_1, p_1), see LobattoIIIAIIIB.step
     dense: DenseStep  # the step's continuous extension (lobattodae._dense)
     retry: jax.Array  # a failed step's size factor for the next attempt (RETRY_FACTOR or larger)
+    share: Any = None  # step doubling: the share of the difference that error is
 
 
 @dataclass(frozen=True)
