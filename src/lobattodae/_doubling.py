@@ -41,7 +41,10 @@ stiffness keep their size. A sleigh that settles: step points at most 7.3 × rto
 (before: up to 251 ×, 10 runs above 30 ×) with 0–30 % more steps; the test set's problems take
 as many attempts within 2 % (``benchmarks/RESULTS.md``, 2026-11-28, 12:00).
 Where a step is too long for the asymptotic expansion in the other way (a fast transient), the
-two approximations disagree by much and the step is rejected. The
+two approximations disagree by much and the step is rejected; where they agree too well for the
+change of the error constant from the step before, the controller checks the divisor on a step of
+half the size (``PIController``, "Large steps": the settling sleigh's 36 runs then at most 2.2 ×,
+2026-11-28 21:55; this module reports the share it used in ``StepInfo.share``). The
 whole step starts from its own Jacobian and predictor (kept across steps like the half steps'):
 an independent extrapolation, not the half steps' result, whose Newton failures are what keeps
 Andrews' steps out of that range (predicted from the halves, its error reached 92 × rtol).
