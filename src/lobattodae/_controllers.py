@@ -201,8 +201,8 @@ class AdaptiveState(NamedTuple):
     span: jax.Array  # |t1 - t0| of the requested interval (the unit of the error per unit step)
     n_rejected: jax.Array  # int32
     n_floored: jax.Array  # int32: accepted steps that passed only because of ROUNDOFF_FLOOR
-    h_last: jax.Array  # the last accepted step's size and unfloored scaled error (0, 0 before the first)
-    err_last: jax.Array
+    h_last: jax.Array  # size and unfloored scaled error of the last step the controller chose whose error lay
+    err_last: jax.Array  # above Newton's noise (accepted, not shortened onto an output time; 0, 0 before one)
     checking: jax.Array  # bool: the last attempt was rejected to check its estimate on a shorter step
     n_checked: jax.Array  # int32: such checks
     radius: jax.Array  # the tableau's richardson_radius (LobattoPair)
@@ -553,9 +553,9 @@ class PIController(_TimeAndEnd):
         grow = jnp.where((grow >= 1.0) & (grow <= self.hysteresis), 1.0, grow)
         shrink = jnp.where(usable, jnp.clip(self.safety * safe_err ** (-1.0 / self._observed_order(st, report, err, k)),
                                             self.fac_min, 0.9), report.retry)
+        shrink = jnp.where(check, 0.5, shrink)
         # the step-size policy is a heuristic, not part of the model: derivatives follow the step
         # sequence the run chose (only the clipping to the end of the interval moves with t_span)
-        shrink = jnp.where(check, 0.5, shrink)
         h_new = report.h * jax.lax.stop_gradient(jnp.where(accept, grow, shrink))
         # a step the loop shortened to end on an output time (t_eval rows stepped onto) is not the
         # step size the error asked for: after it the run resumes its own proposal (unless the
@@ -593,9 +593,10 @@ class PIController(_TimeAndEnd):
         in units of h (r the tableau's ``richardson_radius``), and the difference of the two
         results itself fails the test (``err / share > 1``, ``report.share`` the share of the
         difference that the estimate is, Richardson's ``1 / (2^k - 1)`` or the larger one of
-        :meth:`~lobattodae._doubling.StepDoubling._share`: the divisor decides). Its retry measures the power of h by which
-        the error fell between the two attempts, ``k_obs`` in ``[1, k]``, and divides the
-        difference by ``2^k_obs - 1`` where that is less than the divisor it used.
+        :meth:`~lobattodae._doubling.StepDoubling._share`: the divisor decides). Its retry
+        measures the power of h by which the error fell between the two attempts, ``k_obs`` in
+        ``[1, k]`` (:meth:`_observed_order`), and divides the difference by ``2^k_obs - 1`` where
+        that is less than the divisor it used.
         """
         no = jnp.asarray(False)
         if self.estimate != "doubling" or not self.check_large_steps:
@@ -603,10 +604,10 @@ class PIController(_TimeAndEnd):
         # decisions about the step sequence, like the step-size rule: no derivatives through them
         e, st = jax.lax.stop_gradient((err, st))
         share = 1.0 / (2.0**k - 1.0) if report.share is None else jax.lax.stop_gradient(report.share)
-        h, h_rejected = jnp.abs(jax.lax.stop_gradient(report.h)), jnp.abs(st.h_rejected)
-        retry = st.checking & (h < h_rejected)
-        fell = jnp.log(st.err_rejected / jnp.maximum(e, 1e-300)) / jnp.log(jnp.where(retry, h_rejected / h, 2.0))
-        observed = jnp.where(jnp.isfinite(fell), jnp.clip(fell, 1.0, k), k)
+        report = report._replace(h=jax.lax.stop_gradient(report.h))
+        h = jnp.abs(report.h)
+        retry = st.checking & (h < jnp.abs(st.h_rejected))
+        observed = jnp.maximum(self._observed_order(st, report, e, k), 1.0)
         # the observed ratio of the whole and halved steps' errors where it is below the divisor used
         e = jnp.where(retry, e * jnp.maximum(1.0, 1.0 / (share * (2.0**observed - 1.0))), e)
         h_last = jnp.abs(st.h_last)

@@ -90,7 +90,8 @@ Version 9 keeps step doubling's two inverse Jacobians stacked in the state of
 error-controlled runs, ``stepper.jacobians.inverse`` of shape (2, N²).  Version 10 adds the
 round-off level Newton measured, ``stepper.jacobian.floor`` (``stepper.jacobians.floor``).
 Version 11 adds the check of large steps to the PI controller's state: ``controller.h_last``,
-``controller.err_last``, ``controller.checking``, ``controller.n_checked``.)
+``controller.err_last``, ``controller.checking``, ``controller.n_checked``,
+``controller.radius``.)
 
 Atomic writes
 -------------
