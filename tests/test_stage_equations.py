@@ -4,6 +4,8 @@ residual, the one by forward differences equals it to √ε, the three Newton va
 same solution, the residual vanishes at a converged step, the layout round-trips, and the
 predictor evaluated at times is exact on polynomials."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -198,3 +200,47 @@ def test_a_constraint_damped_mode_is_integrated_explicitly():
         assert factor(2, h) == pytest.approx(1 + z + z**2 / 2, rel=1e-6, abs=1e-9)
     assert factor(4, 1.0) == pytest.approx(np.exp(-k), rel=1e-4)
     assert abs(factor(4, 12.0)) < 1 < abs(factor(4, 16.0))
+
+
+@pytest.mark.parametrize("s", [2, 3, 4, 5, 6])
+def test_a_constraint_damped_mode_is_multiplied_by_the_s_s_minus_2_pade_function(s):
+    """What step doubling's estimate assumes of such a mode (``LobattoPair.constraint_stability``):
+    the sleigh's factor over one step equals the (s, s−2) Padé approximant of e^z, from the
+    resolved range (k h = 0.35) to far beyond the stability limit (k h = 21, where the diagonal
+    Padé function of ODE modes would stay below 1 in modulus)."""
+    ex = get_example("sleigh")
+    a = ex.args
+    v, w = np.sqrt(2.0), 1e-9
+    k = a.m * a.a * v / (a.I + a.m * a.a**2)
+    q0, p0 = np.zeros(3), np.array([a.m * v, a.m * a.a * w, a.I * w])
+    lam0 = L.consistent_lambda(ex.problem, 0.0, q0, p0, np.zeros(1), a)
+    method = L.LobattoIIIAIIIB(stages=s)
+    step = jax.jit(lambda h: method.step(ex.problem, 0.0, q0, p0, lam0, h, a))
+    for h in (0.5, 3.0, 10.0, 30.0):
+        _, p1, _, info, _ = step(h)
+        assert int(info.result) == 0
+        expected = method.pair.constraint_stability(-k * h).real
+        assert float(p1[2] / p0[2]) == pytest.approx(expected, rel=1e-5, abs=1e-7), h
+
+
+def test_step_values_sum_the_increment_with_compensation():
+    """Row (4) as compensated summation: ``y_1 + compensation_1`` is ``y_0 + δ`` exactly (checked
+    in rational arithmetic; s = 2, h = 1/2 and equal stage slopes make ``h Σ b_j V_j`` exact),
+    where a plain sum loses the low bits of δ against a large ``y_0``."""
+    from fractions import Fraction
+
+    pair = L.lobatto_pair(2)
+    y0 = np.array([700.1234567890123, -3.0, 1e-3, 2.5e16])
+    slope = np.array([0.123456789012345, 1.0, 1e-20, 3.0])
+    carried = np.array([1.1e-14, -3e-17, 2e-22, 0.25])
+    params = se.StageParams(jnp.asarray(0.0), jnp.asarray(0.5), jnp.asarray(y0[:2]), jnp.asarray(y0[2:]),
+                            jnp.zeros(1), None)
+    stages = se.Stages(jnp.zeros((2, 2)), jnp.zeros((2, 2)), jnp.zeros((2, 1)),
+                       jnp.asarray([slope[:2]] * 2), jnp.asarray([slope[2:]] * 2))
+    # every number an argument: XLA folds constants with reassociation, which no run meets
+    q1, p1, _, lost = jax.jit(functools.partial(se.step_values, pair))(params, stages, jnp.asarray(carried))
+    y1, lost = np.concatenate([q1, p1]), np.asarray(lost)
+    for i in range(4):
+        delta = Fraction(float(np.float64(0.5 * slope[i]) + carried[i]))  # as summed before the compensation
+        assert Fraction(y1[i]) + Fraction(lost[i]) == Fraction(y0[i]) + delta, i
+    assert np.all(lost[[0, 3]] != 0.0)  # what a plain sum would have lost

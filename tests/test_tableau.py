@@ -321,6 +321,26 @@ def test_stability_function_is_the_diagonal_pade_approximant(s):
     assert abs(pair.stability(np.array([-1e9]))[0] - pair.r_infinity) < 1e-6
 
 
+@pytest.mark.parametrize("s", [2, 3, 4, 5, 6])
+def test_constraint_stability_is_the_s_s_minus_2_pade_approximant(s):
+    """``R_c = N / D`` of degrees (s, s − 2) matches e^z to order 2s − 2: ``D(z) e^z − N(z)`` has no
+    terms of degree ≤ 2s − 2 (the coefficients of D times those of e^z, against N's); s = 2 is
+    the Taylor polynomial 1 + z + z²/2; R_c is unbounded (|R_c| > 1 at the stability limit)."""
+    from math import factorial
+
+    pair = lobatto_pair(s)
+    num, den = pair.constraint_pade
+    assert num.shape == (s + 1,) and den.shape == (s - 1,) and num[0] == den[0] == 1.0
+    assert not num.flags.writeable and not den.flags.writeable
+    series = np.array([1.0 / factorial(j) for j in range(2 * s - 1)])
+    product = np.convolve(den, series)[: 2 * s - 1]
+    np.testing.assert_allclose(product, np.concatenate([num, np.zeros(s - 2)]), rtol=1e-13, atol=1e-15)
+    if s == 2:
+        np.testing.assert_allclose(num, [1.0, 1.0, 0.5])
+    limit = {2: 2.0, 3: 5.42, 4: 9.65, 5: 14.73, 6: 20.6}[s]  # docs/variable-steps.md §2, measured on the sleigh
+    assert abs(pair.constraint_stability(-0.98 * limit)) < 1 < abs(pair.constraint_stability(-1.02 * limit))
+
+
 @pytest.mark.parametrize("s", [2, 3, 4, 5, 6, 8])
 def test_richardson_radius_bounds_where_the_asymptotic_ratio_holds(s):
     """Inside the radius the whole step's and the half steps' errors relate as 2^(2s-2) for damped

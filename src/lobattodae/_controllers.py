@@ -99,9 +99,13 @@ def _rms(x):
 
 def _end_clipped(t, h, t_end):
     """``h``, shortened to end at ``t_end`` (or stretched to it when that is within
-    END_STRETCH of h), so a run ends on ``t_end`` exactly."""
+    END_STRETCH of h), so a run ends on ``t_end`` exactly; otherwise the step the time grid
+    holds, ``fl(t + h) − t`` (exact while h ≤ |t|): the steps' sizes then sum to the time that
+    passed. Rounding ``t + h`` instead drifts the steps against time by up to half a unit of t
+    per step, with one sign while the steps keep their size (a knife edge over T = 1000 at
+    s = 6: its angle, which grows at a constant rate, 1.0e-11 off in 1,667 steps)."""
     rest = t_end - t
-    return jnp.where(jnp.abs(rest) <= (1.0 + END_STRETCH) * jnp.abs(h), rest, h)
+    return jnp.where(jnp.abs(rest) <= (1.0 + END_STRETCH) * jnp.abs(h), rest, (t + h) - t)
 
 
 def _too_small(h, t, t0, t_end):

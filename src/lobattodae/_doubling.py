@@ -66,6 +66,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._controllers import PIController
 from ._dense import joined
@@ -149,16 +150,28 @@ class StepDoubling:
         modulus = jnp.sqrt(jnp.sum(je * je) / size2)
         real = jnp.sum(e * je) / size2
         z = jax.lax.complex(real, jnp.sqrt(jnp.maximum(modulus**2 - real**2, 0.0)))
-        coef = jnp.asarray(self.pair.pade_coefficients[::-1], dtype=z.dtype)
 
-        def stability(x):
-            return jnp.polyval(coef, x) / jnp.polyval(coef, -x)
+        def ratio(num, den):
+            """``|D(z)|`` for a mode that one step multiplies by ``num(z) / den(z)``."""
+            num, den = (jnp.asarray(c[::-1], dtype=z.dtype) for c in (num, den))
 
-        half = stability(0.5 * z) ** 2
-        ratio = jnp.abs((half - stability(z)) / (half - jnp.exp(z)))
+            def stability(x):
+                return jnp.polyval(num, x) / jnp.polyval(den, x)
+
+            half = stability(0.5 * z) ** 2
+            return jnp.abs((half - stability(z)) / (half - jnp.exp(z)))
+
+        pade = self.pair.pade_coefficients
+        ode = ratio(pade, pade * (-1.0) ** np.arange(pade.size))
+        constrained = ratio(*self.pair.constraint_pade)
         d0 = 1.0 / self.richardson
-        ratio = jnp.where(jnp.isfinite(ratio), jnp.clip(ratio, 1.0, d0), 1.0)
-        return jnp.where(modulus <= self.pair.richardson_radius, self.richardson, 1.0 / ratio)
+        # an ODE mode: never less cautious than Richardson, never more than the whole difference
+        ode = jnp.where(jnp.isfinite(ode), jnp.clip(ode, 1.0, d0), 1.0)
+        # a mode the constraint damps: its two results can agree while both are far off (the step
+        # amplifies it, |R_c| > 1), so the share may exceed 1, up to the inverse of Richardson's
+        constrained = jnp.where(jnp.isfinite(constrained), jnp.clip(constrained, 1.0 / d0, d0), 1.0)
+        share = jnp.maximum(1.0 / ode, 1.0 / constrained)
+        return jnp.where(modulus <= self.pair.richardson_radius, self.richardson, share)
 
     def init(self, problem, t0, q0, p0, lam0, args: Any = None, h=None, lam_hidden=None) -> DoublingState:
         half = self.method.init(problem, t0, q0, p0, lam0, args, None if h is None else 0.5 * h, lam_hidden)

@@ -96,6 +96,10 @@ class StepperState(NamedTuple):
         excursion of the λ drift).
     monitor : LamMonitor
         The λ drift monitor of ``lam_start="auto"`` (its epochs and its count of excursions).
+    compensation : jax.Array, shape (2n,)
+        What the step point ``(q_n, p_n)`` lost to rounding when the last step's increment was
+        added to it, added to the next increment (compensated summation, see
+        :func:`~lobattodae._stage_equations.step_values`).
     """
 
     jacobian: JacobianCache
@@ -104,6 +108,7 @@ class StepperState(NamedTuple):
     lam_hidden: jax.Array  # λ(t_n, q_n, p_n), from the hidden constraint at the start point
     resync: jax.Array  # bool: the next step starts from lam_hidden ("auto" after an excursion)
     monitor: LamMonitor
+    compensation: jax.Array  # (2n,): the rounding error of (q_n, p_n), carried into the next sum
 
 
 class StepInfo(NamedTuple):
@@ -333,6 +338,7 @@ class LobattoIIIAIIIB:
             lam_hidden=lam_hidden,
             resync=jnp.asarray(False),
             monitor=_fresh_monitor(dtype, jnp.asarray(0, jnp.int32)),
+            compensation=jnp.zeros((2 * n,), dtype),
         )
 
     def start_multiplier(self, lam_n, state: StepperState):
@@ -457,19 +463,19 @@ class LobattoIIIAIIIB:
         position_constraint = getattr(problem, "position_constraint", None) is not None  # static
 
         @jax.checkpoint
-        def complete(x, params):
+        def complete(x, params, compensation):
             # Derivatives are those of the exact stage solution (implicit function theorem);
             # checkpointed, so that reverse mode keeps (x, params) per step and recomputes the
             # stage Jacobian and the vector fields from them instead of storing them.
             x = implicit_root(residual, exact, x, params)
             stages = se.stage_values(problem, pair, layout, x, params)
-            q1, p1, lam1 = se.step_values(pair, params, stages)
+            q1, p1, lam1, compensation = se.step_values(pair, params, stages, compensation)
             if position_constraint:  # ψ(t_1, q_1) = 0 and φ(t_1, q_1, p_1) = 0 by projection
                 q1, p1 = project_step_end(problem, params.t0 + params.h, q1, p1, lam1, params.args)
             lam_hidden = consistent_lambda(problem, params.t0 + params.h, q1, p1, lam1, params.args, iterations=1)
-            return stages, q1, p1, lam1, lam_hidden
+            return stages, q1, p1, lam1, lam_hidden, compensation
 
-        stages, q1, p1, lam1, lam_hidden = complete(x, params)
+        stages, q1, p1, lam1, lam_hidden, compensation = complete(x, params, state.compensation)
         drift = jnp.max(jnp.abs(lam1 - lam_hidden))
         monitor, excursion = self._watch(state.monitor, drift, lam1, state.resync)
         history = self._remember(params, state.history, stages, plain)
@@ -480,6 +486,7 @@ class LobattoIIIAIIIB:
             lam_hidden=lam_hidden,
             resync=jnp.logical_and(excursion, self.lam_start == "auto"),
             monitor=monitor,
+            compensation=compensation,
         )
         error = self._error_estimate(params, stages)
         dense = one_piece(t0, h, q0, p0, stages.V, stages.W, stages.Lam)

@@ -349,6 +349,10 @@ class LobattoPair:
     pade_coefficients : ndarray, shape (s,)
         ``c_j`` of IIIA's stability function ``R(z) = P(z) / P(−z)``, ``P(z) = Σ_j c_j z^j``
         (computed on first use).
+    constraint_pade : tuple of ndarray
+        ``(N, D)``, coefficients (lowest degree first) of the step's stability function on a mode
+        that the constraint damps, ``R_c(z) = N(z) / D(z)``, the (s, s−2) Padé approximant of e^z
+        (see :meth:`constraint_stability`).
     richardson_radius : float
         The largest ``|hμ|`` for which step doubling's Richardson ratio ``2^(2s−2)`` holds
         within a factor two for damped and oscillating linear modes (computed on first use).
@@ -448,6 +452,52 @@ class LobattoPair:
                         for j in range(k + 1)])
         out.setflags(write=False)
         return out
+
+    @functools.cached_property
+    def constraint_pade(self) -> tuple[np.ndarray, np.ndarray]:
+        r"""``(N, D)``: the coefficients (lowest degree first) of ``R_c(z) = N(z) / D(z)``, the
+        (s, s−2) Padé approximant of e^z,
+
+            N_j = (2s−2−j)! s! / ((2s−2)! j! (s−j)!),   D_j = (−1)^j (2s−2−j)! (s−2)! / ((2s−2)! j! (s−2−j)!),
+
+        the factor by which one step multiplies a mode that the constraint damps (see
+        :meth:`constraint_stability`). Read-only."""
+        from math import factorial
+
+        k, m = self.s, self.s - 2
+        num = np.array([factorial(k + m - j) * factorial(k) / (factorial(k + m) * factorial(j) * factorial(k - j))
+                        for j in range(k + 1)])
+        den = np.array([(-1) ** j * factorial(k + m - j) * factorial(m) / (factorial(k + m) * factorial(j)
+                                                                           * factorial(m - j)) for j in range(m + 1)])
+        for x in (num, den):
+            x.setflags(write=False)
+        return num, den
+
+    def constraint_stability(self, z):
+        r"""The step's stability function on a mode that the *constraint* damps, ``R_c(z)``.
+
+        A mode ``y' = μ y`` of the ODE is multiplied by IIIA's :meth:`stability` (the diagonal
+        (s−1, s−1) Padé approximant, bounded by 1 for Re z ≤ 0). A mode that the constraint
+        force damps (the Chaplygin sleigh's turning rate on straight motion, decaying like
+        ``e^(−k t)`` through λ) is multiplied by the (s, s−2) Padé approximant instead, which is
+        unbounded, ``|R_c(z)| ~ |z|²``: for s = 2 the Taylor polynomial ``1 + z + z²/2`` of an
+        explicit method, for every s exceeding 1 beyond ``−z`` = 2.0, 5.4, 9.6, 14.7, 20.6
+        (s = 2..6). Identified on the sleigh, where one step's factor equals it to six digits
+        for s = 2..7 and ``h k`` from 0.35 to 21 (``tests/test_stage_equations.py``).
+
+        Parameters
+        ----------
+        z : array_like
+            Complex (or real) arguments, any shape.
+
+        Returns
+        -------
+        ndarray
+            ``R_c(z)``, complex, of the shape of ``z``.
+        """
+        z = np.asarray(z, complex)
+        num, den = self.constraint_pade
+        return np.polyval(num[::-1], z) / np.polyval(den[::-1], z)
 
     @functools.cached_property
     def richardson_radius(self) -> float:

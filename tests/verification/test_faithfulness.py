@@ -90,6 +90,24 @@ def test_the_four_bar_step_over_its_turning_point_is_checked():
     assert ratio > F.FAITHFUL and checked == 0
 
 
+def test_a_long_run_keeps_its_end_point_above_round_off():
+    """The knife edge over T = 1000 at s = 6, rtol 1e-12 (1,667 steps of h ≈ 0.6): its angle grows
+    steadily to 700, and every step rounded ``θ + h θ'`` and ``t + h`` with one sign, so the end
+    point was 57 x off (θ by 4.5e-11, carried into the momenta) without a warning. With the
+    increments summed with compensation and steps that the time grid holds, θ ends within an
+    ulp of 700 (1.1e-13) and the end point at 1.6 x."""
+    from benchmarks.testset import error
+    from benchmarks.testset.knife_edge import exact
+
+    entry = PROBLEMS["knife-edge"]
+    setup = entry.build()
+    sol = L.solve(setup.problem, L.LobattoIIIAIIIB(stages=6), setup.t_span, setup.q0, setup.p0, args=setup.args,
+                  rtol=1e-12, atol=1e-12, save_every="final")
+    assert sol.success and sol.t[-1] == 1000.0
+    assert error(entry, sol.t[-1], sol.q[-1], sol.p[-1]) <= F.FAITHFUL * 1e-12
+    assert abs(sol.q[-1][2] - exact(1000.0)[0][2]) <= 4 * np.spacing(700.0)
+
+
 def test_the_verdict_lists_warned_runs_apart_but_never_above_1000x():
     """The contract as ``F.verdict`` reads it: above 30 x a run that did not warn is a violation,
     one that warned of round-off is not (it said so), and above 1000 x rtol both are."""
@@ -129,9 +147,7 @@ def test_faithfulness_grid(name):
     """The contract over the whole grid: every run succeeds, every error within 30 × max(rtol,
     the reference's accuracy) unless the run warned that rtol asks for less than the steps'
     round-off, none above 1000 × rtol, at the reference times and at the end of a plain run
-    (``F.verdict``; the knife edge fails it at s = 6, rtol 1e-12 over T = 1000: its end point is
-    57 x off by round-off that the warning does not see, an open gap, benchmarks/RESULTS.md
-    2026-11-28 20:58). Then the slope band 0.8-1.2: missed
+    (``F.verdict``). Then the slope band 0.8-1.2: missed
     where errors stay far below rtol (21 of 47 (problem, s) pairs in the stored grid), reported
     as an expected failure, not hidden."""
     rows, slopes = F.grid([name], F.STAGES, F.RTOLS)

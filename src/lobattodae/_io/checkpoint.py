@@ -91,7 +91,9 @@ error-controlled runs, ``stepper.jacobians.inverse`` of shape (2, N²).  Version
 round-off level Newton measured, ``stepper.jacobian.floor`` (``stepper.jacobians.floor``).
 Version 11 adds the check of large steps to the PI controller's state: ``controller.h_last``,
 ``controller.err_last``, ``controller.checking``, ``controller.n_checked``,
-``controller.radius``.)
+``controller.radius``.  Version 12 adds the rounding error of the step point kept for
+compensated summation, ``stepper.compensation`` (``stepper.half.compensation`` under error
+control).)
 
 Atomic writes
 -------------
@@ -182,12 +184,12 @@ __all__ = [
 ]
 
 FORMAT = "lobattodae-checkpoint"
-VERSION = 11
+VERSION = 12
 
 # schema_fingerprint(<the loop's State templates>) for the current VERSION: the States of constant
 # steps and of error control together; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "053a13b45e326472"  # schema_fingerprint of the States (constant, PI) of VERSION
+STATE_FINGERPRINT: str | None = "7426a1b9337769a7"  # schema_fingerprint of the States (constant, PI) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"
