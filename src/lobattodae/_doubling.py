@@ -37,7 +37,21 @@ equation ``y' = μ y``,
 R the stability function, kept between 1 and 2^(2s-2) − 1 (never less cautious than
 Richardson): where |R(z)| → 1 it falls towards 1 and the estimate is the whole difference; for a
 damped mode just beyond the radius it is still 2^(2s-2) or more, and steps held there by
-stiffness keep their size. A sleigh that settles: step points at most 7.3 × rtol over 36 runs
+stiffness keep their size. That R is IIIA's, the diagonal Padé approximant, for modes of the
+ODE; a mode that the *constraint* damps (the sleigh's turning on straight motion) is multiplied
+by ``R_c``, the (s, s−2) Padé approximant (:meth:`~lobattodae.LobattoPair.constraint_stability`),
+which grows like z² and exceeds 1 beyond −z = 2.0, 5.4, 9.6, 14.7, 20.6 (s = 2..6). Where
+``R_c(z/2)² ≈ R_c(z)`` the whole step and the half steps amplify such a mode alike: their results
+agree while both are far off (s = 4, kh = 34: to 0.4 %, both ~50 times the mode's size off), and
+the ODE theory's D, about 9 there, made the estimate 3,600 times too small. z does not tell the
+two kinds of mode apart; the forces do: the momenta's field at the kept result is evaluated once
+more with the whole step's λ, and where λ's change moves it more than the applied forces' change
+(the sleigh's turning: the constraint's force alone), the share beyond the radius is the larger
+of the two theories', the constraint's ``1 / D_c`` allowed above 1, up to 2^(2s-2) − 1; elsewhere
+the ODE theory's. (Asked everywhere, the constraint's theory cost up to 42 % more attempts on
+problems whose modes beyond the radius are the applied forces', the Fekete particles and the
+slider crank, with errors far below rtol either way.) (Inside the radius Richardson's divisor
+holds for such modes too: D_c lies within 0.5 and 3 times it, for s = 2..6.) A sleigh that settles: step points at most 7.3 × rtol over 36 runs
 (before: up to 251 ×, 10 runs above 30 ×) with 0–30 % more steps; the test set's problems take
 as many attempts within 2 % (``benchmarks/RESULTS.md``, 2026-11-28, 12:00).
 Where a step is too long for the asymptotic expansion in the other way (a fast transient), the
@@ -49,7 +63,7 @@ whole step starts from its own Jacobian and predictor (kept across steps like th
 an independent extrapolation, not the half steps' result, whose Newton failures are what keeps
 Andrews' steps out of that range (predicted from the halves, its error reached 92 × rtol).
 
-A step costs three Newton solves and two evaluations of the vector field.
+A step costs three Newton solves and three evaluations of the vector field.
 
 The three solves are one traced step of the method run three times (``lax.scan`` over
 "whole step, first half, second half"), so the compiled program holds the stage equations
@@ -138,14 +152,21 @@ class StepDoubling:
         """``1 / (2^(2s-2) - 1)``: the half steps' share of the difference of the two results."""
         return 1.0 / (2.0 ** (2 * self.stages - 2) - 1.0)
 
-    def _share(self, h, diff, slopes, y1):
+    def _share(self, h, diff, slopes, y1, through_lam):
         """The half steps' share of the difference ``diff`` of the two results: Richardson's
         ``1 / (2^(2s-2) - 1)`` along modes the step resolves, else the linear theory's ratio at
         ``z = h μ``, μ the Rayleigh quotient of the vector field's Jacobian along ``diff``
-        (``slopes``: its change between the two results), never above 1 (see the module
-        docstring)."""
+        (``slopes``: its change between the two results; ``through_lam``: the part of it that
+        λ's change makes), that of ODE modes (never above 1) or, where the constraint's force
+        changes more than the applied forces, the larger of it and that of modes the constraint
+        damps (see the module docstring)."""
         weight = 1.0 / (1.0 + jnp.abs(y1))
         e, je = weight * diff, jnp.abs(h) * weight * slopes
+        # the force on p along e: more of its change from the constraint's (λ's) than from the
+        # applied forces' makes a mode the constraint damps
+        n = diff.shape[-1] // 2
+        by_lam, applied = weight[n:] * through_lam[n:], weight[n:] * (slopes[n:] - through_lam[n:])
+        by_constraint = jnp.sum(by_lam * by_lam) > jnp.sum(applied * applied)
         size2 = jnp.maximum(jnp.sum(e * e), jnp.finfo(e.dtype).tiny)
         modulus = jnp.sqrt(jnp.sum(je * je) / size2)
         real = jnp.sum(e * je) / size2
@@ -170,7 +191,7 @@ class StepDoubling:
         # a mode the constraint damps: its two results can agree while both are far off (the step
         # amplifies it, |R_c| > 1), so the share may exceed 1, up to the inverse of Richardson's
         constrained = jnp.where(jnp.isfinite(constrained), jnp.clip(constrained, 1.0 / d0, d0), 1.0)
-        share = jnp.maximum(1.0 / ode, 1.0 / constrained)
+        share = jnp.where(by_constraint, jnp.maximum(1.0 / ode, 1.0 / constrained), 1.0 / ode)
         return jnp.where(modulus <= self.pair.richardson_radius, self.richardson, share)
 
     def init(self, problem, t0, q0, p0, lam0, args: Any = None, h=None, lam_hidden=None) -> DoublingState:
@@ -224,10 +245,11 @@ class StepDoubling:
         # Newton's tolerance bounds what the two results can agree to: below it the difference is noise
         noise = NOISE * self.method.tol * (1.0 + jnp.abs(y1))
         # the vector field on the constraint manifold (λ from the hidden constraint) at both results
+        # and at the kept result with the whole step's λ: what λ's change alone changes in it
         fields = jax.vmap(lambda q, p, lam: jnp.concatenate(vector_field(problem, t0 + h, q, p, lam, args)))(
-            qs[::2], ps[::2], lams[::2])
+            qs[jnp.array([0, 2, 2])], ps[jnp.array([0, 2, 2])], lams[jnp.array([0, 2, 0])])
         slopes = fields[1] - fields[0]
-        share = self._share(h, diff, slopes, y1)
+        share = self._share(h, diff, slopes, y1, fields[1] - fields[2])
         error = share * jnp.sign(diff) * jnp.maximum(jnp.abs(diff) - noise, 0.0)
         failed = infos.result != Result.SUCCESSFUL
         result = jnp.where(jnp.any(failed), infos.result[jnp.argmax(failed)], Result.SUCCESSFUL).astype(jnp.int32)
