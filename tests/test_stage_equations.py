@@ -174,27 +174,36 @@ def test_residual_vanishes_at_a_solved_step(s):
     assert float(jnp.max(jnp.abs(ex.problem.phi(0.05, q1, p1, ex.args)))) < 1e-14
 
 
+def _sleigh_turning(omega):
+    """The sleigh on straight motion at speed √2 with turning rate ``omega``: its decay rate k
+    and ``factor(s, h)``, the factor by which one step of s stages multiplies the turning rate."""
+    ex = get_example("sleigh")
+    a = ex.args
+    v = np.sqrt(2.0)
+    k = a.m * a.a * v / (a.I + a.m * a.a**2)
+    q0, p0 = np.zeros(3), np.array([a.m * v, a.m * a.a * omega, a.I * omega])
+    lam0 = L.consistent_lambda(ex.problem, 0.0, q0, p0, np.zeros(1), a)
+
+    @functools.lru_cache(maxsize=None)
+    def step(s):
+        method = L.LobattoIIIAIIIB(stages=s)
+        return jax.jit(lambda h: method.step(ex.problem, 0.0, q0, p0, lam0, h, a))
+
+    def factor(s, h):
+        _, p1, _, info, _ = step(s)(h)
+        assert int(info.result) == 0
+        return float(p1[2] / p0[2])
+
+    return k, factor
+
+
 def test_a_constraint_damped_mode_is_integrated_explicitly():
     """The sleigh on straight motion: its turning rate decays like exp(-k t) through the
     constraint, and one step multiplies it by R(h). For s = 2 the scheme gives exactly the
     Taylor polynomial 1 + z + z²/2 (z = -k h), as an explicit second-order method would; for
     s = 4 R is accurate for small h but exceeds 1 beyond k h ≈ 9.65 (the step-size limit
     documented in docs/variable-steps.md §2, benchmarks/stability_limit.py)."""
-    ex = get_example("sleigh")
-    a = ex.args
-    v, w = np.sqrt(2.0), 1e-6
-    k = a.m * a.a * v / (a.I + a.m * a.a**2)
-    q0, p0 = np.zeros(3), np.array([a.m * v, a.m * a.a * w, a.I * w])
-    lam0 = L.consistent_lambda(ex.problem, 0.0, q0, p0, np.zeros(1), a)
-
-    steps = {s: jax.jit(lambda h, m=L.LobattoIIIAIIIB(stages=s): m.step(ex.problem, 0.0, q0, p0, lam0, h, a))
-             for s in (2, 4)}
-
-    def factor(s, h):
-        _, p1, _, info, _ = steps[s](h)
-        assert int(info.result) == 0
-        return float(p1[2] / p0[2])
-
+    k, factor = _sleigh_turning(1e-6)
     for h in (0.5, 2.0, 4.0, 8.0):
         z = -k * h
         assert factor(2, h) == pytest.approx(1 + z + z**2 / 2, rel=1e-6, abs=1e-9)
@@ -208,19 +217,11 @@ def test_a_constraint_damped_mode_is_multiplied_by_the_s_s_minus_2_pade_function
     the sleigh's factor over one step equals the (s, s−2) Padé approximant of e^z, from the
     resolved range (k h = 0.35) to far beyond the stability limit (k h = 21, where the diagonal
     Padé function of ODE modes would stay below 1 in modulus)."""
-    ex = get_example("sleigh")
-    a = ex.args
-    v, w = np.sqrt(2.0), 1e-9
-    k = a.m * a.a * v / (a.I + a.m * a.a**2)
-    q0, p0 = np.zeros(3), np.array([a.m * v, a.m * a.a * w, a.I * w])
-    lam0 = L.consistent_lambda(ex.problem, 0.0, q0, p0, np.zeros(1), a)
-    method = L.LobattoIIIAIIIB(stages=s)
-    step = jax.jit(lambda h: method.step(ex.problem, 0.0, q0, p0, lam0, h, a))
+    k, factor = _sleigh_turning(1e-9)
+    pair = L.lobatto_pair(s)
     for h in (0.5, 3.0, 10.0, 30.0):
-        _, p1, _, info, _ = step(h)
-        assert int(info.result) == 0
-        expected = method.pair.constraint_stability(-k * h).real
-        assert float(p1[2] / p0[2]) == pytest.approx(expected, rel=1e-5, abs=1e-7), h
+        expected = pair.constraint_stability(-k * h).real
+        assert factor(s, h) == pytest.approx(expected, rel=1e-5, abs=1e-7), h
 
 
 def test_step_values_sum_the_increment_with_compensation():
