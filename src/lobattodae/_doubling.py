@@ -50,10 +50,11 @@ more with the whole step's λ, and where λ's change moves it more than the appl
 of the two theories', the constraint's ``1 / D_c`` allowed above 1, up to 2^(2s-2) − 1; elsewhere
 the ODE theory's. (Asked everywhere, the constraint's theory cost up to 42 % more attempts on
 problems whose modes beyond the radius are the applied forces', the Fekete particles and the
-slider crank, with errors far below rtol either way.) (Inside the radius Richardson's divisor
-holds for such modes too: D_c lies within 0.5 and 3 times it, for s = 2..6.) A sleigh that settles: step points at most 7.3 × rtol over 36 runs
-(before: up to 251 ×, 10 runs above 30 ×) with 0–30 % more steps; the test set's problems take
-as many attempts within 2 % (``benchmarks/RESULTS.md``, 2026-11-28, 12:00).
+slider crank, with errors far below rtol either way.) Inside the radius Richardson's divisor
+holds for such modes too: D_c lies within 0.5 and 3 times it, for s = 2..6. A sleigh that
+settles: step points at most 7.3 × rtol over 36 runs with the ODE theory (before it: up to
+251 ×, 10 runs above 30 ×; ``benchmarks/RESULTS.md``, 2026-11-28, 12:00), 0.72 × with both and
+the check of large steps below (2026-11-29).
 Where a step is too long for the asymptotic expansion in the other way (a fast transient), the
 two approximations disagree by much and the step is rejected; where they agree too well for the
 change of the error constant from the step before, the controller checks the divisor on a step of
