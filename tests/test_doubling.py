@@ -220,3 +220,24 @@ def test_the_roundoff_count_is_the_same_from_every_entry_point(tmp_path):
     np.testing.assert_array_equal(normal.n_roundoff_limited, [0, 0])
     assert int(L.integrate_adaptive(ex.problem, method, span, q0, p0, lam0, ex.args, rtol=1e-8, atol=1e-8,
                                     controller=L.ReversibleStepSize()).n_roundoff_limited) == 0
+
+
+def test_the_constraints_theory_is_asked_only_where_lambda_moves_the_forces():
+    """The share of a difference along a real mode with z = −34 (s = 4): IIIA's theory divides by
+    about 9; the constraint's, where R_c(z/2)² ≈ R_c(z), says the error is about fifty times the
+    difference (53 here; capped at 2^(2s-2) - 1 = 63). Which one is read depends on what changes the force on
+    p along the difference: λ alone (the sleigh) or the applied forces (a damper)."""
+    doubling = StepDoubling(L.LobattoIIIAIIIB(stages=4))
+    h, mu = 68.0, -0.5
+    diff = jnp.asarray([0.0, 1e-9])
+    slopes = mu * diff
+    y1 = jnp.zeros(2)
+    by_lam = float(doubling._share(h, diff, slopes, y1, through_lam=slopes))
+    applied = float(doubling._share(h, diff, slopes, y1, through_lam=jnp.zeros(2)))
+    z = h * mu
+    pair = doubling.pair
+    ode = abs((pair.stability(z / 2) ** 2 - pair.stability(z)) / (pair.stability(z / 2) ** 2 - np.exp(z)))
+    rc = pair.constraint_stability
+    constrained = abs((rc(z / 2) ** 2 - rc(z)) / (rc(z / 2) ** 2 - np.exp(z)))
+    assert applied == pytest.approx(1.0 / ode, rel=1e-9) and applied < 1.0
+    assert by_lam == pytest.approx(1.0 / constrained, rel=1e-9) and 30.0 < by_lam < 63.0
