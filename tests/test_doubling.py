@@ -89,6 +89,15 @@ def _sleigh_at_rest_turning(ex, omega):
     return jnp.zeros(3), jnp.asarray([a.m, a.m * a.a * omega, a.I * omega])
 
 
+def _turning_sleigh_step(omega, h, s):
+    """The sleigh, the error-controlled runs' method (``lam_start="consistent"``) and the start
+    ``(t0, q0, p0, λ0, h)`` of one step of size h from straight motion turning at ``omega``."""
+    ex = get_example("sleigh")
+    q0, p0 = _sleigh_at_rest_turning(ex, omega)
+    lam0 = L.consistent_lambda(ex.problem, 0.0, q0, p0, jnp.zeros(1), args=ex.args)
+    return ex, L.LobattoIIIAIIIB(stages=s, lam_start="consistent"), (0.0, q0, p0, lam0, h)
+
+
 def _fine_flow(ex, method, t0, q0, p0, lam0, h):
     """``(q, p)`` after 2000 steps of ``method`` over h: the exact flow to round-off."""
     step = jax.jit(lambda t, q, p, lam, hh: method.step(ex.problem, t, q, p, lam, hh, ex.args)[:3])
@@ -110,11 +119,7 @@ def test_a_step_beyond_the_damped_modes_reach_is_not_divided_by_richardsons_rati
     linear theory's ratio there instead: 7.7e-9 (0.24 x the true error; the DAE's mode is not the
     scalar test equation), 39 x larger, enough to reject the step at any tolerance it would pass
     wrongly."""
-    ex = get_example("sleigh")
-    q0, p0 = _sleigh_at_rest_turning(ex, 1e-10)
-    t0, h, s = 0.0, 118.0, 5
-    method = L.LobattoIIIAIIIB(stages=s, lam_start="consistent")
-    lam0 = L.consistent_lambda(ex.problem, t0, q0, p0, jnp.zeros(1), args=ex.args)
+    ex, method, (t0, q0, p0, lam0, h) = _turning_sleigh_step(omega=1e-10, h=118.0, s=5)
     q1, p1, _, info, _ = jax.jit(lambda: StepDoubling(method).step(ex.problem, t0, q0, p0, lam0, h, ex.args))()
     qf, pf = _fine_flow(ex, method, t0, q0, p0, lam0, h)
     true = np.max(np.abs(np.concatenate([q1 - qf, p1 - pf])))
@@ -132,11 +137,7 @@ def test_a_step_whose_two_results_agree_but_both_amplify_the_damped_mode_is_reje
     estimate 3,600 times too small at the step a settling sleigh took there (error 42 x rtol at
     its end). The constraint's force moves the momenta here (the sleigh has no applied force), so
     its theory is asked too, and the estimate is within a factor three of the true error."""
-    ex = get_example("sleigh")
-    q0, p0 = _sleigh_at_rest_turning(ex, 1e-8)
-    t0, h, s = 0.0, 68.0, 4
-    method = L.LobattoIIIAIIIB(stages=s, lam_start="consistent")
-    lam0 = L.consistent_lambda(ex.problem, t0, q0, p0, jnp.zeros(1), args=ex.args)
+    ex, method, (t0, q0, p0, lam0, h) = _turning_sleigh_step(omega=1e-8, h=68.0, s=4)
     q1, p1, _, info, _ = jax.jit(lambda: StepDoubling(method).step(ex.problem, t0, q0, p0, lam0, h, ex.args))()
     q_whole, p_whole, _, _, _ = jax.jit(lambda: method.step(ex.problem, t0, q0, p0, lam0, h, ex.args))()
     exact = np.concatenate(_fine_flow(ex, method, t0, q0, p0, lam0, h))

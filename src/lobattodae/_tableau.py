@@ -445,33 +445,19 @@ class LobattoPair:
         """``c_j`` of ``R(z) = P(z) / P(−z)``, ``P(z) = Σ_j c_j z^j``: Lobatto IIIA's stability
         function is the (s−1, s−1) Padé approximant of e^z, ``c_j = (2k−j)! k! / ((2k)! j! (k−j)!)``
         with k = s − 1 (lowest degree first). Read-only."""
-        from math import factorial
-
-        k = self.s - 1
-        out = np.array([factorial(2 * k - j) * factorial(k) / (factorial(2 * k) * factorial(j) * factorial(k - j))
-                        for j in range(k + 1)])
-        out.setflags(write=False)
-        return out
+        return _pade(self.s - 1, self.s - 1)[0]
 
     @functools.cached_property
     def constraint_pade(self) -> tuple[np.ndarray, np.ndarray]:
         r"""``(N, D)``: the coefficients (lowest degree first) of ``R_c(z) = N(z) / D(z)``, the
         (s, s−2) Padé approximant of e^z,
 
-            N_j = (2s−2−j)! s! / ((2s−2)! j! (s−j)!),   D_j = (−1)^j (2s−2−j)! (s−2)! / ((2s−2)! j! (s−2−j)!),
+            N_j = (2s−2−j)! s! / ((2s−2)! j! (s−j)!),
+            D_j = (−1)^j (2s−2−j)! (s−2)! / ((2s−2)! j! (s−2−j)!),
 
         the factor by which one step multiplies a mode that the constraint damps (see
         :meth:`constraint_stability`). Read-only."""
-        from math import factorial
-
-        k, m = self.s, self.s - 2
-        num = np.array([factorial(k + m - j) * factorial(k) / (factorial(k + m) * factorial(j) * factorial(k - j))
-                        for j in range(k + 1)])
-        den = np.array([(-1) ** j * factorial(k + m - j) * factorial(m) / (factorial(k + m) * factorial(j)
-                                                                           * factorial(m - j)) for j in range(m + 1)])
-        for x in (num, den):
-            x.setflags(write=False)
-        return num, den
+        return _pade(self.s, self.s - 2)
 
     def constraint_stability(self, z):
         r"""The step's stability function on a mode that the *constraint* damps, ``R_c(z)``.
@@ -537,6 +523,22 @@ class LobattoPair:
 
     def __repr__(self) -> str:
         return f"LobattoPair(s={self.s})"
+
+
+def _pade(k: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(N, D)``, read-only, lowest degree first: the (k, m) Padé approximant of e^z,
+    ``N_j = (k+m−j)! k! / ((k+m)! j! (k−j)!)``, ``D_j = (−1)^j (k+m−j)! m! / ((k+m)! j! (m−j)!)``."""
+    from math import factorial
+
+    def coefficients(degree, sign):
+        return np.array([sign**j * (factorial(k + m - j) * factorial(degree)
+                                    / (factorial(k + m) * factorial(j) * factorial(degree - j)))
+                         for j in range(degree + 1)])
+
+    num, den = coefficients(k, 1.0), coefficients(m, -1.0)
+    for x in (num, den):
+        x.setflags(write=False)
+    return num, den
 
 
 @functools.lru_cache(maxsize=None)
