@@ -212,3 +212,26 @@ def test_small_error_controlled_steps_keep_the_constraint_at_round_off():
                             save_every="final")
     assert sol.success and sol.stats["n_steps"] > 5_000
     assert sol.stats["max_constraint_residual"] <= 1e-13
+
+
+def test_stats_say_what_set_the_steps():
+    """``n_unresolved``: a sleigh settling into straight motion over T = 1000 takes most of its
+    late steps at the stability limit of its damped turning (their difference beyond Richardson's
+    radius), a knife edge none; ``n_failed_solves``: the vertical disk of the test set
+    (``benchmarks/testset/vertical_disk.py``) at s = 6 and rtol 1e-4 grows its steps until the
+    compared whole step's Newton solve fails (hω ≈ 4), and those are all its rejections. Constant steps have neither counter."""
+    m5, m6 = L.LobattoIIIAIIIB(stages=5), L.LobattoIIIAIIIB(stages=6)
+    sleigh = get_example("sleigh")
+    st = L.solve(sleigh.problem, m5, (0.0, 1000.0), sleigh.q0, sleigh.p0, args=sleigh.args, rtol=1e-8, atol=1e-8,
+                 save_every="final").stats
+    assert st["n_unresolved"] >= 0.25 * st["n_steps"] and st["n_failed_solves"] == 0, st
+    knife = get_example("knife-edge")
+    st = L.solve(knife.problem, m5, (0.0, 100.0), knife.q0, knife.p0, args=knife.args, rtol=1e-8, atol=1e-8,
+                 save_every="final").stats
+    assert st["n_unresolved"] == 0 and st["n_failed_solves"] == 0, st
+    disk = L.examples.vertical_rolling_disk(m=1.3, R=0.7, I=0.4, J=0.9, omega_phi=1.5, omega_theta=2.5, phi0=0.3)
+    st = L.solve(disk.problem, m6, (0.0, 100.0), disk.q0, disk.p0, args=disk.args, rtol=1e-4, atol=1e-4,
+                 save_every="final").stats
+    assert st["n_failed_solves"] >= 5 and st["n_failed_solves"] == st["n_rejected"] - st["n_checked"], st
+    st = L.solve(knife.problem, m5, (0.0, 1.0), knife.q0, knife.p0, args=knife.args, n_steps=4).stats
+    assert st["n_unresolved"] is None and st["n_failed_solves"] is None

@@ -52,7 +52,8 @@ def _pi_state(c: "L.PIController", h, order):
     return AdaptiveState(t=f(0.0), h=f(h), t0=f(0.0), t_end=f(1.0), err_prev=f(1.0),
                          h_rejected=f(0.0), err_rejected=f(jnp.inf), rtol=f(0.0), atol=f(1.0), max_step=f(jnp.inf),
                          order=f(order), span=f(1.0), n_rejected=jnp.asarray(0, jnp.int32), n_floored=jnp.asarray(0, jnp.int32),
-                         h_last=f(0.0), err_last=f(0.0), checking=jnp.asarray(False), n_checked=jnp.asarray(0, jnp.int32), radius=f(6.0))
+                         h_last=f(0.0), err_last=f(0.0), checking=jnp.asarray(False), n_checked=jnp.asarray(0, jnp.int32), radius=f(6.0),
+                         n_failed_solves=jnp.asarray(0, jnp.int32), n_unresolved=jnp.asarray(0, jnp.int32))
 
 
 def _attempt(c, st, err_of_h):
@@ -141,6 +142,33 @@ def test_a_step_whose_error_constant_jumps_is_checked_on_half_the_step():
     # with Richardson's share the same error is checked
     accept, st, _ = c.adapt(_measured(c, 0.1, 1e-3), None, None, report._replace(share=jnp.float64(1 / 255)))
     assert not bool(accept) and int(st.n_checked) == 1
+
+
+def test_what_set_the_steps_is_counted():
+    """A failed stage solve is a rejection counted in ``n_failed_solves`` (retried at the size
+    the stepper asks); an accepted step whose difference lay beyond Richardson's radius counts in
+    ``n_unresolved``, a rejected one does not, nor one within the radius or without the flag
+    (the embedded estimate)."""
+    c = L.PIController()
+    z = jnp.zeros(2)
+    st = _pi_state(c, 0.1, 8.0)
+    small = jnp.full(2, 1e-3 * 0.1)  # err = 1e-3: passes
+
+    def report(ok=True, resolved=None, error=small):
+        return StepReport(jnp.asarray(ok), jnp.asarray(0 if ok else 2), st.t, jnp.float64(0.1), z, z, error,
+                          z[:1], z[:1], z[:1], retry=jnp.float64(0.25), share=jnp.float64(0.5),
+                          resolved=None if resolved is None else jnp.asarray(resolved))
+
+    accept, after, _ = c.adapt(st, None, None, report(ok=False))
+    assert not bool(accept) and int(after.n_failed_solves) == 1 and int(after.n_rejected) == 1
+    assert float(after.h) == pytest.approx(0.025) and int(after.n_unresolved) == 0
+    accept, after, _ = c.adapt(st, None, None, report(resolved=False))
+    assert bool(accept) and int(after.n_unresolved) == 1 and int(after.n_failed_solves) == 0
+    for kw in ({"resolved": True}, {}):
+        accept, after, _ = c.adapt(st, None, None, report(**kw))
+        assert bool(accept) and int(after.n_unresolved) == 0
+    accept, after, _ = c.adapt(st, None, None, report(resolved=False, error=jnp.full(2, 10 * 0.1)))
+    assert not bool(accept) and int(after.n_unresolved) == 0 and int(after.n_failed_solves) == 0
 
 
 def test_a_check_that_finds_the_error_falling_slowly_corrects_the_divisor():

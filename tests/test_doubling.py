@@ -233,8 +233,10 @@ def test_the_constraints_theory_is_asked_only_where_lambda_moves_the_forces():
     diff = jnp.asarray([0.0, 1e-9])
     slopes = mu * diff
     y1 = jnp.zeros(2)
-    by_lam = float(doubling._share(h, diff, slopes, y1, through_lam=slopes))
-    applied = float(doubling._share(h, diff, slopes, y1, through_lam=jnp.zeros(2)))
+    (by_lam, resolved), (applied, _) = (doubling._share(h, diff, slopes, y1, through_lam=through)
+                                        for through in (slopes, jnp.zeros(2)))
+    by_lam, applied = float(by_lam), float(applied)
+    assert not bool(resolved)  # |z| = 34, beyond the radius 4.5
     z = h * mu
     pair = doubling.pair
     ode = abs((pair.stability(z / 2) ** 2 - pair.stability(z)) / (pair.stability(z / 2) ** 2 - np.exp(z)))

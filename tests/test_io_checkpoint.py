@@ -136,7 +136,7 @@ def test_file_schema_is_explicit(tmp_path):
     with np.load(path, allow_pickle=False) as data:
         keys = set(data.files)
         assert str(data["__format__"]) == C.FORMAT == "lobattodae-checkpoint"
-        assert int(data["__version__"]) == C.VERSION == 12
+        assert int(data["__version__"]) == C.VERSION == 13
         assert json.loads(str(data["meta"])) == META
         assert json.loads(str(data["counters"])) == COUNTERS
         segments = json.loads(str(data["segments"]))
@@ -158,7 +158,7 @@ def test_file_schema_is_explicit(tmp_path):
     with np.load(os.path.join(C.rows_directory(path), name), allow_pickle=False) as seg:
         assert set(seg.files) == {"__format__", "__version__", "segment", "rows/q", "rows/result", "rows/ok"}
         assert str(seg["__format__"]) == C.ROWS_FORMAT == "lobattodae-checkpoint-rows"
-        assert int(seg["__version__"]) == 12
+        assert int(seg["__version__"]) == 13
         info = json.loads(str(seg["segment"]))
         assert info["run"] == segments["run"] and info["index"] == 0
         for key in rows:
@@ -228,7 +228,7 @@ def test_meta_with_nan_matches_itself(tmp_path):
     read(path, meta=meta)
 
 
-@pytest.mark.parametrize("version, age", [(10, "an older"), (11, "an older"), (13, "a newer")])
+@pytest.mark.parametrize("version, age", [(11, "an older"), (12, "an older"), (14, "a newer")])
 def test_version_mismatch(tmp_path, monkeypatch, version, age):
     path = tmp_path / "run.npz"
     with monkeypatch.context() as m:
@@ -238,7 +238,7 @@ def test_version_mismatch(tmp_path, monkeypatch, version, age):
         read(path)
     msg = str(info.value)
     assert msg.startswith(f"checkpoint '{path}' has checkpoint format version {version} (written by {age} "), msg
-    assert "this lobattodae reads and writes version 12" in msg
+    assert "this lobattodae reads and writes version 13" in msg
     assert "delete it or restart without resume" in msg
 
 
@@ -247,7 +247,7 @@ def test_legacy_leaf_layout_is_reported_as_version_1(tmp_path):
     legacy_meta = {"format": "lobattodae-checkpoint-1", "method": "x", "t0": 0.0}
     with open(path, "wb") as fh:
         np.savez(fh, meta=json.dumps(legacy_meta), done=3, recoveries=0, leaf_0=np.zeros(3), out_q=np.zeros((3, 2)))
-    with pytest.raises(C.CheckpointError, match="has checkpoint format version 1 .* reads and writes version 12"):
+    with pytest.raises(C.CheckpointError, match="has checkpoint format version 1 .* reads and writes version 13"):
         read(path)
 
 
@@ -260,7 +260,7 @@ def test_version_3_single_file_is_refused_with_the_version_message(tmp_path):
         read(path)
     assert str(info.value) == (
         f"checkpoint '{path}' has checkpoint format version 3 (written by an older lobattodae), but this "
-        "lobattodae reads and writes version 12; delete it or restart without resume."
+        "lobattodae reads and writes version 13; delete it or restart without resume."
     )
 
 

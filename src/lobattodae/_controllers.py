@@ -91,6 +91,7 @@ class StepReport(NamedTuple):
     lam1: jax.Array
     retry: Any = RETRY_FACTOR  # a failed step's size factor for the next attempt (StepInfo.retry)
     share: Any = None  # step doubling: the share of the two results' difference that error is (StepInfo.share)
+    resolved: Any = None  # step doubling: bool, the difference lay within Richardson's radius (StepInfo.resolved)
 
 
 def _rms(x):
@@ -210,6 +211,8 @@ class AdaptiveState(NamedTuple):
     checking: jax.Array  # bool: the last attempt was rejected to check its estimate on a shorter step
     n_checked: jax.Array  # int32: such checks
     radius: jax.Array  # the tableau's richardson_radius (LobattoPair)
+    n_failed_solves: jax.Array  # int32: attempts rejected because a stage solve failed (in n_rejected)
+    n_unresolved: jax.Array  # int32: accepted steps whose estimate lay beyond Richardson's radius
 
     @property
     def rejected(self):
@@ -298,6 +301,16 @@ class PIController(_TimeAndEnd):
     quarter of the size (``StepInfo.retry``; half, where step doubling's half steps converged and
     only the compared whole step did not). Factors in
     ``[1, hysteresis]`` keep h (and the reused Jacobians, see ``H_CHANGE_REFRESH``).
+
+    **What set the steps.** Two counters say where a run's steps were not set by the accuracy
+    the tolerance asks for: attempts rejected because a stage solve failed
+    (``Solution.stats["n_failed_solves"]``, also in ``n_rejected``), and accepted steps whose
+    difference lay along modes beyond the tableau's ``richardson_radius``
+    (``Solution.stats["n_unresolved"]``): their size was set by the method's linear stability
+    there (a stiff or constraint-damped mode, an oscillation shorter than the step), not by its
+    asymptotic accuracy, and where most steps are such the error can lie orders of magnitude
+    below rtol (a sleigh settling into straight motion, steps held by the stability limit of its
+    damped turning; ``benchmarks/RESULTS.md``, 2026-11-29).
 
     **Large steps** (``check_large_steps=True``, the default). Richardson's divisor rests on the
     expansion ``C h^(k+1)`` with C nearly constant over the step. A step long against the scale
@@ -479,6 +492,7 @@ class PIController(_TimeAndEnd):
             h_last=jnp.asarray(0.0, dtype), err_last=jnp.asarray(0.0, dtype),
             checking=jnp.asarray(False), n_checked=jnp.asarray(0, jnp.int32),
             radius=jnp.asarray(method.pair.richardson_radius, dtype),
+            n_failed_solves=jnp.asarray(0, jnp.int32), n_unresolved=jnp.asarray(0, jnp.int32),
         )
 
     def proposal(self, st: AdaptiveState):
@@ -537,6 +551,7 @@ class PIController(_TimeAndEnd):
             return _rms(jnp.where(report.error == 0, 0.0, report.error / jnp.where(sc == 0, 1.0, sc)))
 
         floored = jnp.asarray(False)
+        resolved = jnp.asarray(True) if report.resolved is None else report.resolved
         if self.estimate == "doubling":  # per unit step, relative to the requested interval
             asked = scale * jnp.abs(report.h) / st.span
             scale = jnp.maximum(asked, ROUNDOFF_FLOOR * (1.0 + size))
@@ -581,6 +596,8 @@ class PIController(_TimeAndEnd):
             n_floored=st.n_floored + (accept & floored).astype(jnp.int32),
             h_last=jnp.where(measured, report.h, st.h_last), err_last=jnp.where(measured, err, st.err_last),
             checking=check, n_checked=st.n_checked + check.astype(jnp.int32),
+            n_failed_solves=st.n_failed_solves + (~report.ok).astype(jnp.int32),
+            n_unresolved=st.n_unresolved + (accept & ~resolved).astype(jnp.int32),
         )
         finished = accept & (t == st.t_end)
         small = ~finished & _too_small(h_new, t, st.t0, st.t_end)

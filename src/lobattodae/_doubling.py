@@ -154,13 +154,13 @@ class StepDoubling:
         return 1.0 / (2.0 ** (2 * self.stages - 2) - 1.0)
 
     def _share(self, h, diff, slopes, y1, through_lam):
-        """The half steps' share of the difference ``diff`` of the two results: Richardson's
+        """``(share, resolved)``: the half steps' share of the difference ``diff`` of the two results: Richardson's
         ``1 / (2^(2s-2) - 1)`` along modes the step resolves, else the linear theory's ratio at
         ``z = h μ``, μ the Rayleigh quotient of the vector field's Jacobian along ``diff``
         (``slopes``: its change between the two results; ``through_lam``: the part of it that
         λ's change makes), that of ODE modes (never above 1) or, where the constraint's force
         changes more than the applied forces, the larger of it and that of modes the constraint
-        damps (see the module docstring)."""
+        damps (see the module docstring); and whether the modes were within Richardson's radius."""
         weight = 1.0 / (1.0 + jnp.abs(y1))
         e, je = weight * diff, jnp.abs(h) * weight * slopes
         # the force on p along e: more of its change from the constraint's (λ's) than from the
@@ -193,7 +193,8 @@ class StepDoubling:
         # amplifies it, |R_c| > 1), so the share may exceed 1, up to the inverse of Richardson's
         constrained = jnp.where(jnp.isfinite(constrained), jnp.clip(constrained, 1.0 / d0, d0), 1.0)
         share = jnp.where(by_constraint, jnp.maximum(1.0 / ode, 1.0 / constrained), 1.0 / ode)
-        return jnp.where(modulus <= self.pair.richardson_radius, self.richardson, share)
+        resolved = modulus <= self.pair.richardson_radius
+        return jnp.where(resolved, self.richardson, share), resolved
 
     def init(self, problem, t0, q0, p0, lam0, args: Any = None, h=None, lam_hidden=None) -> DoublingState:
         half = self.method.init(problem, t0, q0, p0, lam0, args, None if h is None else 0.5 * h, lam_hidden)
@@ -250,7 +251,7 @@ class StepDoubling:
         fields = jax.vmap(lambda q, p, lam: jnp.concatenate(vector_field(problem, t0 + h, q, p, lam, args)))(
             qs[jnp.array([0, 2, 2])], ps[jnp.array([0, 2, 2])], lams[jnp.array([0, 2, 0])])
         slopes = fields[1] - fields[0]
-        share = self._share(h, diff, slopes, y1, fields[1] - fields[2])
+        share, resolved = self._share(h, diff, slopes, y1, fields[1] - fields[2])
         error = share * jnp.sign(diff) * jnp.maximum(jnp.abs(diff) - noise, 0.0)
         failed = infos.result != Result.SUCCESSFUL
         result = jnp.where(jnp.any(failed), infos.result[jnp.argmax(failed)], Result.SUCCESSFUL).astype(jnp.int32)
@@ -268,6 +269,7 @@ class StepDoubling:
             # converged (the first half), so the retry need not shrink further
             retry=jnp.where(failed[0] & ~jnp.any(failed[1:]), 0.5, jnp.min(infos.retry)),
             share=share,
+            resolved=resolved,
         )
         new_state = DoublingState(half, jacobians, h_jacobians, jax.tree_util.tree_map(lambda x: x[0], histories))
         return q1, p1, lam1, info, new_state

@@ -218,7 +218,7 @@ def attempt(problem, method: LobattoIIIAIIIB, controller, output: Output, st: St
     # 2. controller (and terminal events, which turn the step into a re-step to the zero)
     report = StepReport(
         ok, info.result, t, h, jnp.concatenate([st.q, st.p]), jnp.concatenate([q1, p1]), info.error, q1, p1, lam1,
-        info.retry, info.share,
+        info.retry, info.share, info.resolved,
     )
     accept, ctrl, result = controller.adapt(st.controller, problem, args, report)
     t1 = jnp.where(accept, controller.time(ctrl), t + h)

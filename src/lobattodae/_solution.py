@@ -46,6 +46,11 @@ STATS = {
                           "step is asked for less than its round-off (ROUNDOFF_FLOOR); None for other step-size rules",
     "n_checked": "PIController (step doubling): attempts rejected to check their estimate on a step of half the "
                  "size (counted in n_rejected; PIController(check_large_steps)); None for other step-size rules",
+    "n_failed_solves": "PIController: attempts rejected because a stage solve failed (Newton did not converge, or "
+                       "values not finite); counted in n_rejected; None for other step-size rules",
+    "n_unresolved": "PIController (step doubling): accepted steps whose estimate lay along modes beyond the "
+                    "tableau's richardson_radius, whose size the method's stability set rather than its accuracy "
+                    "(where most steps are such, the error can be far below rtol); None for other step-size rules",
     "failed_step": "index of the failed step, or None",
     "recoveries": "failed steps retried as substeps (max_recoveries, constant steps)",
     "compile_and_run_time": "wall time of the integration loop, compilation included (s)",
@@ -198,7 +203,8 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         return np.concatenate([[x0], rows]) if with_initial else rows
 
     excursions = int(state.stepper.monitor.excursions)
-    floored = int(state.controller.n_floored) if isinstance(opt.controller, PIController) else None
+    pi = isinstance(opt.controller, PIController)
+    floored = int(state.controller.n_floored) if pi else None
     stats = {
         "newton_iterations": out.iterations,
         "residual_norm": out.residual_norm,
@@ -217,6 +223,8 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         "n_clamped": int(state.controller.n_clamped) if isinstance(opt.controller, ReversibleStepSize) else None,
         "n_roundoff_limited": floored,
         "n_checked": int(state.controller.n_checked) if isinstance(opt.controller, PIController) else None,
+        "n_failed_solves": int(state.controller.n_failed_solves) if pi else None,
+        "n_unresolved": int(state.controller.n_unresolved) if pi and opt.controller.estimate == "doubling" else None,
         "failed_step": failed_step,
         "recoveries": run.recoveries,
         "compile_and_run_time": elapsed,

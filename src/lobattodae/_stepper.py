@@ -142,6 +142,11 @@ class StepInfo(NamedTuple):
     share : jax.Array or None
         Step doubling: the share of the two results' difference that ``error`` is (Richardson's
         ``1 / (2^(2s-2) - 1)`` or larger, see :mod:`~lobattodae._doubling`); None otherwise.
+    resolved : jax.Array or None
+        Step doubling: bool, the difference lay along modes that the step resolves (``|h μ|``
+        within the tableau's ``richardson_radius``, where Richardson's divisor holds); False
+        where the step's size is beyond the reach of its modes (stiffness, the stability limit
+        of a mode the constraint damps, an oscillation shorter than the step). None otherwise.
     """
 
     result: jax.Array
@@ -154,6 +159,7 @@ class StepInfo(NamedTuple):
     dense: DenseStep  # the step's continuous extension (lobattodae._dense)
     retry: jax.Array  # a failed step's size factor for the next attempt (RETRY_FACTOR or larger)
     share: Any = None  # step doubling: the share of the difference that error is
+    resolved: Any = None  # step doubling: bool, the difference lay within Richardson's radius
 
 
 @dataclass(frozen=True)

@@ -93,7 +93,8 @@ Version 11 adds the check of large steps to the PI controller's state: ``control
 ``controller.err_last``, ``controller.checking``, ``controller.n_checked``,
 ``controller.radius``.  Version 12 adds the rounding error of the step point kept for
 compensated summation, ``stepper.compensation`` (``stepper.half.compensation`` under error
-control).)
+control).  Version 13 adds two counters to the PI controller's state, ``controller.n_failed_solves``
+and ``controller.n_unresolved``.)
 
 Atomic writes
 -------------
@@ -184,12 +185,12 @@ __all__ = [
 ]
 
 FORMAT = "lobattodae-checkpoint"
-VERSION = 12
+VERSION = 13
 
 # schema_fingerprint(<the loop's State templates>) for the current VERSION: the States of constant
 # steps and of error control together; a test asserts the two agree, so that changing the State
 # without bumping VERSION (and updating this constant) fails.  None: not recorded yet.
-STATE_FINGERPRINT: str | None = "7426a1b9337769a7"  # schema_fingerprint of the States (constant, PI) of VERSION
+STATE_FINGERPRINT: str | None = "e0416ba094e06351"  # schema_fingerprint of the States (constant, PI) of VERSION
 
 _STATE = "state/"
 _ROWS = "rows/"
