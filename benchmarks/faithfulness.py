@@ -109,7 +109,7 @@ def slope(rows: list[dict], ref_accuracy: float, only_rtol_set: bool = False) ->
     error is round-off's, as it says; rows without the flag count as unwarned); with
     ``only_rtol_set`` also only over the runs whose steps rtol set (:func:`rtol_set`)."""
     use = [r for r in rows if math.isfinite(r["error"]) and r["error"] > FAITHFUL * ref_accuracy
-           and not r.get("roundoff_warned", False) and (rtol_set(r) or not only_rtol_set)]
+           and not r.get("roundoff_warned", False) and (not only_rtol_set or rtol_set(r))]
     if len(use) < 2:
         return math.nan
     return float(np.polyfit(np.log10([r["rtol"] for r in use]), np.log10([r["error"] for r in use]), 1)[0])
