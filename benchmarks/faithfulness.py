@@ -198,9 +198,9 @@ def slope_misses(rows: list[dict], slopes: dict) -> list[str]:
         mine = [r for r in rows if f"{r['problem']} s={r['s']}" == key]
         held = [r for r in mine if not rtol_set(r)]
         again = slope(mine, PROBLEMS[mine[0]["problem"]].ref_accuracy, only_rtol_set=True)
-        why = ", ".join(f"{r['rtol']:g}: {r.get('n_unresolved', '?')}/{r['n_steps']} unresolved, "
-                        f"{r.get('n_failed_solves', '?')}/{r['n_steps'] + r['n_rejected']} failed solves"
-                        for r in held)
+        # (a row without the counters counts as set by rtol: every held row has them)
+        why = ", ".join(f"{r['rtol']:g}: {r['n_unresolved']}/{r['n_steps']} unresolved, "
+                        f"{r['n_failed_solves']}/{r['n_steps'] + r['n_rejected']} failed solves" for r in held)
         lines.append(f"{key}: slope {v:.2f}; runs not set by rtol: {why or 'none'}; "
                      f"slope over the others {again:.2f}")
     return lines

@@ -154,13 +154,14 @@ class StepDoubling:
         return 1.0 / (2.0 ** (2 * self.stages - 2) - 1.0)
 
     def _share(self, h, diff, slopes, y1, through_lam):
-        """``(share, resolved)``: the half steps' share of the difference ``diff`` of the two results: Richardson's
-        ``1 / (2^(2s-2) - 1)`` along modes the step resolves, else the linear theory's ratio at
-        ``z = h μ``, μ the Rayleigh quotient of the vector field's Jacobian along ``diff``
-        (``slopes``: its change between the two results; ``through_lam``: the part of it that
-        λ's change makes), that of ODE modes (never above 1) or, where the constraint's force
-        changes more than the applied forces, the larger of it and that of modes the constraint
-        damps (see the module docstring); and whether the modes were within Richardson's radius."""
+        """``(share, resolved)``: the half steps' share of the difference ``diff`` of the two
+        results, Richardson's ``1 / (2^(2s-2) - 1)`` along modes the step resolves, else the
+        linear theory's ratio at ``z = h μ``, μ the Rayleigh quotient of the vector field's
+        Jacobian along ``diff`` (``slopes``: its change between the two results; ``through_lam``:
+        the part of it that λ's change makes), that of ODE modes (never above 1) or, where the
+        constraint's force changes more than the applied forces, the larger of it and that of
+        modes the constraint damps (see the module docstring); and whether those modes lay
+        within Richardson's radius (``resolved``)."""
         weight = 1.0 / (1.0 + jnp.abs(y1))
         e, je = weight * diff, jnp.abs(h) * weight * slopes
         # the force on p along e: more of its change from the constraint's (λ's) than from the
