@@ -35,8 +35,8 @@ def test_global_error_is_proportional_to_rtol(sleigh):
 @pytest.mark.parametrize("s", [4])
 def test_embedded_estimate_keeps_its_calibrated_tolerance_constant(s):
     """The opt-in embedded estimate: the per-s c_tol (C_TOL) brings error/rtol near 1 where
-    c_tol = 1 gave about 0.1 (s = 4) and 0.01 (s = 5) on the knife edge
-    (benchmarks/error_estimate.py); the error scales like c_tol^((2s-2)/s)."""
+    c_tol = 1 gave about 0.5 (s = 4) on the knife edge (benchmarks/error_estimate.py, 2026-11-29),
+    and the error scales like c_tol^((2s-2)/s): C_TOL[4] = 1.59 makes it 2.0 times larger."""
     ex = get_example("knife-edge")
     method = L.LobattoIIIAIIIB(stages=s)
     ratio = {}
@@ -46,7 +46,8 @@ def test_embedded_estimate_keeps_its_calibrated_tolerance_constant(s):
         q, p, _ = ex.exact(10.0)
         ratio[c_tol] = max(np.abs(sol.q[-1] - q).max(), np.abs(sol.p[-1] - p).max()) / 1e-8
     assert 0.2 < ratio[None] < 5.0, ratio
-    assert ratio[1.0] < 0.2 * ratio[None], ratio
+    expected = C_TOL[s] ** ((2 * s - 2) / s)
+    assert 0.7 * expected < ratio[None] / ratio[1.0] < 1.4 * expected, (ratio, expected)
     embedded = L.PIController(estimate="embedded")
     assert embedded.tolerance_constant(s) == C_TOL[s] and embedded.tolerance_constant(9) == C_TOL[5]
 

@@ -129,8 +129,9 @@ class StartPointDensity(ReversibleStepSize):
 #: Energy test: t in (0, T_ENERGY) is about 3·10⁴ steps of mean size 0.17; growth is the max
 #: |ΔH| over the last tenth of the run divided by that over the first tenth.
 T_ENERGY = 5000.0
-#: The PI controller's tolerance at which it takes about as many steps as the reversible run.
-PI_RTOL = 6e-3
+#: The PI controller's tolerance at which it takes about as many steps as the reversible run
+#: (6e-3 until the PI rule's hysteresis stopped holding steps far below the tolerance, 2026-11-29).
+PI_RTOL = 3e-3
 
 
 @pytest.fixture(scope="module")
@@ -162,11 +163,10 @@ def test_reversible_control_keeps_the_energy_error_bounded(contact, energy_runs)
 
 def test_error_controlled_steps_make_the_energy_drift(contact, energy_runs):
     """At the same number of steps the PI controller's energy error grows linearly while the
-    reversible control's stays bounded: measured (2026-11-27, step-doubling estimate,
-    rtol = PI_RTOL) 29,814 steps, max |ΔH| 2.5e-5 (first tenth) → 2.4e-4 (last tenth), growth
-    9.5; with the paper's symmetric step (lam_start='previous': 29,929 steps, growth 7.6, last
-    tenth 3.8e-5) too, so the unsymmetric step-size sequence alone breaks it (each step is
-    two symmetric half steps). The unsymmetric explicit density rule drifts as well (29,573
+    reversible control's stays bounded: measured (2026-11-29, step-doubling estimate,
+    rtol = PI_RTOL) 29,572 steps, growth 10.1, max |ΔH| 3.5e-4; with the paper's symmetric step
+    (lam_start='previous': 29,489 steps, growth 8.8, max |ΔH| 1.1e-4) too, so the unsymmetric
+    step-size sequence alone breaks it (each step is two symmetric half steps). The unsymmetric explicit density rule drifts as well (29,573
     steps, 9.6e-5 → 8.9e-4, growth 9.3): the test above is one a controller that is not
     symmetric fails."""
     rev = energy_runs["reversible"]

@@ -68,11 +68,13 @@ def test_the_squeezer_stays_faithful_where_richardson_is_outside_its_range():
 
 
 def test_the_four_bar_step_over_its_turning_point_is_checked():
-    """The hold-out four-bar linkage at s = 6, rtol 1e-4, without t_eval rows: one step of
-    h = 0.30 over the crank's turning point passed with Richardson's divisor 1023 where the whole
-    and halved steps' errors differ 28 times, and the end point was 47 x off. The check of large
-    steps (PIController(check_large_steps), on by default) retries it with h/2 (measured 0.29 x,
-    5 checks); switched off, the defect is back."""
+    """The hold-out four-bar linkage at s = 6, without t_eval rows: a step over the crank's
+    turning point passes with Richardson's divisor 1023 where the whole and halved steps' errors
+    differ tens of times (at rtol 1e-4 until 2026-11-29: h = 0.30, errors 28 times apart, end point
+    47 x off). The check of large steps (PIController(check_large_steps), on by default) retries
+    it with h/2; switched off, the defect is back. Measured with the PI rule's hysteresis fixed
+    (2026-11-29) at rtol 3e-4: 0.0043 x with 3 checks, 424 x unchecked (at 1e-4: 0.0057 x against
+    26 x)."""
     from benchmarks.testset import error
 
     entry = PROBLEMS["fourbar"]
@@ -80,9 +82,9 @@ def test_the_four_bar_step_over_its_turning_point_is_checked():
 
     def end_ratio(check):
         sol = L.solve(setup.problem, L.LobattoIIIAIIIB(stages=6), setup.t_span, setup.q0, setup.p0, args=setup.args,
-                      rtol=1e-4, atol=1e-4, save_every="final", controller=L.PIController(check_large_steps=check))
+                      rtol=3e-4, atol=3e-4, save_every="final", controller=L.PIController(check_large_steps=check))
         assert sol.success
-        return error(entry, sol.t[-1], sol.q[-1], sol.p[-1]) / 1e-4, sol.stats["n_checked"]
+        return error(entry, sol.t[-1], sol.q[-1], sol.p[-1]) / 3e-4, sol.stats["n_checked"]
 
     ratio, checked = end_ratio(True)
     assert ratio <= F.FAITHFUL and checked >= 1
