@@ -182,43 +182,52 @@ def test_tight_tolerances_on_long_runs_do_not_collapse_the_steps():
         sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), (0.0, 1000.0), ex.q0, ex.p0, args=ex.args, rtol=1e-12,
                       atol=1e-12, save_every="final", throw=False)
     assert caught[0].filename == __file__  # the warning points at the caller of solve
-    assert sol.success, sol.message
+    assert sol.success and sol.result == L.Result.ROUNDOFF_LIMITED and sol.status == 0, sol.message
     assert sol.stats["n_roundoff_limited"] > 0.9 * sol.stats["n_steps"]
-    assert "Warning:" in sol.message and "looser rtol" in sol.message
+    assert sol.message.startswith("The end of the integration interval was reached, but")
+    assert "looser rtol" in sol.message
     q, p, _ = ex.exact(1000.0)
     assert np.max(np.abs(sol.q[-1] - q) / (1 + np.abs(q))) < 1e-9
     assert sol.stats["n_rejected"] < 0.1 * sol.stats["n_steps"]
 
 
-def test_the_roundoff_count_is_the_same_from_every_entry_point(tmp_path):
+def test_the_roundoff_count_and_status_are_the_same_from_every_entry_point(tmp_path):
     """``integrate_adaptive`` (where a run may be under jit and cannot warn) and ``ensemble``
     (which warns, as solve does) report the steps that passed only by the round-off floor, the
-    same count as ``solve``'s stats: knife edge, T = 50, rtol = 1e-13 (about half the steps; as
-    many attempts are rejected)."""
+    same count as ``solve``'s stats, and the same status, ``ROUNDOFF_LIMITED``: knife edge,
+    T = 50, rtol = 1e-13 (about half the steps; as many attempts are rejected)."""
     ex = get_example("knife-edge")
     q0, p0 = np.asarray(ex.q0), np.asarray(ex.p0)
     lam0 = np.asarray(L.consistent_lambda(ex.problem, 0.0, q0, p0, np.zeros(1), ex.args))
     method, span, tight = L.LobattoIIIAIIIB(stages=3), (0.0, 50.0), dict(rtol=1e-13, atol=1e-13)
     with pytest.warns(RuntimeWarning, match="asked for less than their round-off"):
         sol = L.solve(ex.problem, method, span, q0, p0, args=ex.args, save_every="final", **tight)
-    count = sol.stats["n_roundoff_limited"]
-    assert count > 0.3 * sol.stats["n_steps"]
+    count, limited = sol.stats["n_roundoff_limited"], L.Result.ROUNDOFF_LIMITED
+    assert count > 0.3 * sol.stats["n_steps"] and sol.result == limited and sol.success
     r = L.integrate_adaptive(ex.problem, method, span, q0, p0, lam0, ex.args, max_steps=16384, **tight)
-    assert int(r.status) == L.Result.SUCCESSFUL and int(r.n_steps) == sol.stats["n_steps"]
+    assert int(r.status) == limited and int(r.n_steps) == sol.stats["n_steps"]
     assert int(r.n_roundoff_limited) == count
+    d = L.integrate_adaptive(ex.problem, method, span, q0, p0, lam0, ex.args, max_steps=16384, differentiable=True,
+                             **tight)
+    assert int(d.status) == limited and int(d.n_roundoff_limited) == count
     batch = [np.stack([x, x]) for x in (q0, p0, lam0)]
     with pytest.warns(RuntimeWarning, match=r"2 of 2 trajectories \(first: 0\).*less than their round-off") as caught:
         e = L.ensemble(ex.problem, method, *batch, ex.args, t_span=span, max_steps=16384, **tight)
     assert caught[0].filename == __file__  # the warning points at the caller of ensemble
     np.testing.assert_array_equal(e.n_roundoff_limited, [count, count])
+    np.testing.assert_array_equal(e.status, [limited, limited])
     with pytest.warns(RuntimeWarning, match=r"2 of 2 trajectories \(first: 0\)"):
-        L.ensemble(ex.problem, method, *batch, ex.args, t_span=span, max_steps=16384, out_dir=tmp_path, **tight)
-    np.testing.assert_array_equal(L.load_ensemble(tmp_path).n_roundoff_limited, [count, count])
+        files = L.ensemble(ex.problem, method, *batch, ex.args, t_span=span, max_steps=16384, out_dir=tmp_path, **tight)
+    assert files.n_failed == 0  # limited by round-off, but each reached its end
+    loaded = L.load_ensemble(tmp_path)
+    np.testing.assert_array_equal(loaded.n_roundoff_limited, [count, count])
+    np.testing.assert_array_equal(loaded.status, [limited, limited])
     # at an ordinary tolerance: none, and no warning
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         normal = L.ensemble(ex.problem, method, *batch, ex.args, t_span=span, rtol=1e-8, atol=1e-8)
     np.testing.assert_array_equal(normal.n_roundoff_limited, [0, 0])
+    np.testing.assert_array_equal(normal.status, [L.Result.SUCCESSFUL] * 2)
     assert int(L.integrate_adaptive(ex.problem, method, span, q0, p0, lam0, ex.args, rtol=1e-8, atol=1e-8,
                                     controller=L.ReversibleStepSize()).n_roundoff_limited) == 0
 

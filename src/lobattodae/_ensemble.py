@@ -57,6 +57,7 @@ from . import _compile
 from ._controllers import ROUNDOFF_FLOOR, roundoff_may_exceed
 from ._errors import LobattoDAEInputError
 from ._integrate import integrate, integrate_adaptive
+from ._results import REACHED_END
 from ._io import fingerprint_arrays, fingerprint_callable
 from ._io.ensemble_files import (
     FILE_FORMAT,
@@ -127,7 +128,8 @@ class EnsembleResult(NamedTuple):
     lam : ndarray, shape (B, m) or (B, rows, m)
         The multipliers λ, likewise.
     status : ndarray, shape (B,), int32
-        Each trajectory's :class:`~lobattodae.Result` code (0: success).
+        Each trajectory's :class:`~lobattodae.Result` code (0: success; 11, ``ROUNDOFF_LIMITED``: the
+        end was reached, but rtol asked the steps for less than their round-off).
     t : ndarray, shape (B,) or (B, rows), optional
         Error-controlled runs: the final time, or the times of the rows (step points or
         ``t_eval``).
@@ -148,7 +150,7 @@ class EnsembleResult(NamedTuple):
     q: np.ndarray | None  # (B, n) final, or (B, rows, n)
     p: np.ndarray | None  # (B, n) or (B, rows, n)
     lam: np.ndarray | None  # (B, m) or (B, rows, m)
-    status: np.ndarray | None  # (B,) int32 Result code (0: success)
+    status: np.ndarray | None  # (B,) int32 Result code (0: success, 11: success limited by round-off)
     t: np.ndarray | None = None  # adaptive: (B,) final time or (B, rows) step points / t_eval
     n_rows: np.ndarray | None = None  # adaptive: (B,) int32 valid rows of q, p, lam, t (NaN after them)
     n_steps: np.ndarray | None = None  # adaptive: (B,) int32 accepted steps
@@ -167,7 +169,7 @@ class EnsembleFiles(NamedTuple):
     start, stop : int
         This process's slice of the global batch: trajectories ``start`` to ``stop - 1``.
     n_failed : int
-        Trajectories of the slice whose status is not ``Result.SUCCESSFUL``.
+        Trajectories of the slice that did not reach their end (``Result.success`` false).
     n_skipped : int
         Blocks found complete on disk (``if_exists="resume"``) and not computed again.
     process_index, process_count : int
@@ -178,7 +180,7 @@ class EnsembleFiles(NamedTuple):
     paths: tuple[str, ...]  # this process's block files, in the order of the trajectories
     start: int  # this process's slice of the global batch: trajectories start .. stop - 1
     stop: int
-    n_failed: int  # trajectories of the slice whose status is not SUCCESSFUL
+    n_failed: int  # trajectories of the slice that did not reach their end (Result.success false)
     n_skipped: int  # blocks found complete on disk (if_exists="resume") and not recomputed
     process_index: int
     process_count: int
@@ -586,7 +588,7 @@ def _write_blocks(blocks: _Blocks, bounds, out_dir: str, if_exists: str, run_met
         write_block(paths[k], arrays)
         if "n_roundoff_limited" in arrays:
             over.append(a + _over_roundoff(arrays["n_roundoff_limited"], mode))
-        count["failed"] += int(np.count_nonzero(result["status"] != 0))
+        count["failed"] += int(np.count_nonzero(~np.isin(result["status"], REACHED_END)))
     over = np.concatenate(over, dtype=np.int64) if over else np.zeros(0, np.int64)
     return count["failed"], count["skipped"], paths, over
 

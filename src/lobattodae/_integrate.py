@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _compile
-from ._controllers import ConstantStepSize, ControlOptions, PIController
+from ._controllers import ConstantStepSize, ControlOptions, PIController, roundoff_may_exceed
 from ._dense import evaluate, unpack_dense
 from ._doubling import for_error_control
 from ._errors import LobattoDAEInputError
@@ -187,14 +187,16 @@ class AdaptiveResult(NamedTuple):
     n_steps, n_rejected : jax.Array, int32
         Accepted steps and rejected attempts.
     status : jax.Array, int32
-        The :class:`Result` code (``MAX_STEPS`` when ``max_steps`` ran out first).
+        The :class:`Result` code (``MAX_STEPS`` when ``max_steps`` ran out first,
+        ``ROUNDOFF_LIMITED`` when the end was reached but rtol asked the steps for less than
+        their round-off, see ``n_roundoff_limited``).
     n_roundoff_limited : jax.Array, int32
         Accepted steps that passed the error test only because no step is asked for a local
         error below its round-off, 1e-13 relative to ``1 + |y|`` (:class:`~lobattodae.PIController`;
         0 for controllers without that floor). When ``n_roundoff_limited · 1e-13 > rtol`` the
         tolerance asks for less than the steps resolve over the interval and the error may
-        exceed rtol: :func:`~lobattodae.solve` warns then, and here, where a run may be under
-        ``jit``, this count is how it says so.
+        exceed rtol: ``status`` is then ``ROUNDOFF_LIMITED`` (here and in
+        :func:`~lobattodae.solve`, which also warns).
     """
 
     t: jax.Array  # (rows,) step points (row 0: t0) or the t_eval times
@@ -215,14 +217,16 @@ def _integrate_adaptive(problem, method, controller, max_steps, differentiable, 
     if differentiable:
         out = _adaptive_scan(problem, method, controller, max_steps, checkpoints, state, t0, q0, p0, lam0, args, t_eval,
                              rows)
-        return out._replace(status=_t_eval_status(out.status, t0, t1, t_eval).astype(jnp.int32))
+        status = _roundoff_status(_t_eval_status(out.status, t0, t1, t_eval), out.n_roundoff_limited, options.rtol)
+        return out._replace(status=status.astype(jnp.int32))
     length = max_steps if t_eval is None else t_eval.shape[0]
     state, chunk = run(problem, method, controller, output, state, args, length, Recording(t_eval=t_eval),
                        max_attempts=max_steps)
     rec = unpack_rows(*chunk.rows, q0.shape[-1], lam0.shape[-1])
     reached = controller.done(state.controller) | (t_eval is not None and chunk.n_rows == length)  # every row written
     status = jnp.where((state.result == Result.SUCCESSFUL) & ~reached, Result.MAX_STEPS, state.result)
-    status = _t_eval_status(status, t0, t1, t_eval).astype(jnp.int32)
+    status = _t_eval_status(status, t0, t1, t_eval)
+    status = _roundoff_status(status, _roundoff_limited(state), options.rtol).astype(jnp.int32)
     if t_eval is None:
         return AdaptiveResult(
             _with_initial(t0, rec.t), _with_initial(q0, rec.q), _with_initial(p0, rec.p), _with_initial(lam0, rec.lam),
@@ -236,6 +240,13 @@ def _roundoff_limited(state):
     """The controller's count of steps passed only by the round-off floor (0 without one)."""
     count = getattr(state.controller, "n_floored", None)
     return jnp.asarray(0 if count is None else count, jnp.int32)
+
+
+def _roundoff_status(status, n_roundoff_limited, rtol):
+    """``status``, or ``Result.ROUNDOFF_LIMITED`` for a run that would succeed but whose steps
+    passed only by the round-off floor may add up to more than rtol (``solve``'s test)."""
+    return jnp.where((status == Result.SUCCESSFUL) & roundoff_may_exceed(n_roundoff_limited, rtol),
+                     Result.ROUNDOFF_LIMITED, status)
 
 
 def _t_eval_status(status, t0, t1, t_eval):

@@ -44,8 +44,16 @@ class Result(enum.IntEnum):
         ``t_eval`` given to :func:`~lobattodae.integrate_adaptive` under a JAX transformation
         (where it cannot be checked first) has a NaN, a time outside ``t_span`` or is not
         sorted in the direction of integration; its rows are not to be trusted.
+    ROUNDOFF_LIMITED : 11
+        The end of the interval was reached (a success), but rtol asked more of the steps than
+        their round-off allows: the steps that passed only by the round-off floor
+        (``stats["n_roundoff_limited"]``, ``PIController``'s ``ROUNDOFF_FLOOR``) may add up to
+        more than rtol, so the error may exceed it. Set by the end of an error-controlled run
+        that would otherwise be ``SUCCESSFUL``, where ``n_roundoff_limited · ROUNDOFF_FLOOR >
+        rtol``.
     success : bool
-        Of a member: True for ``SUCCESSFUL`` and ``EVENT`` (the run reached its end).
+        Of a member: True for ``SUCCESSFUL``, ``EVENT`` and ``ROUNDOFF_LIMITED`` (the run
+        reached its end).
     message : str
         Of a member: the sentence users see.
     """
@@ -61,16 +69,21 @@ class Result(enum.IntEnum):
     EVENT_NOT_FINITE = 8
     DENSITY_NOT_POSITIVE = 9
     INVALID_T_EVAL = 10
+    ROUNDOFF_LIMITED = 11
 
     @property
     def success(self) -> bool:
         """True for a run that reached its end: the end of the interval or a terminal event."""
-        return self in (Result.SUCCESSFUL, Result.EVENT)
+        return self in REACHED_END
 
     @property
     def message(self) -> str:
         return _MESSAGES[self]
 
+
+#: The results of a run that reached its end (``Result.success``; for arrays of codes:
+#: ``np.isin(status, REACHED_END)``).
+REACHED_END = (Result.SUCCESSFUL, Result.EVENT, Result.ROUNDOFF_LIMITED)
 
 _MESSAGES = {
     Result.SUCCESSFUL: "The solver successfully reached the end of the integration interval.",
@@ -106,5 +119,10 @@ _MESSAGES = {
     Result.INVALID_T_EVAL: (
         "t_eval has a NaN, a time outside t_span, or is not sorted in the direction of integration, so some "
         "of its rows are missing or wrong; give finite times within t_span, sorted (increasing for t1 > t0)."
+    ),
+    Result.ROUNDOFF_LIMITED: (
+        "The end of the integration interval was reached, but rtol asked the steps for less than their round-off: "
+        "the steps that passed only by the round-off floor may add up to more than rtol, so the error may exceed "
+        "it. Use more stages (a higher order takes fewer steps) or a looser rtol."
     ),
 }

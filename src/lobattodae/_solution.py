@@ -71,7 +71,9 @@ class Solution:
     success : bool
         The run reached the end of the interval or a terminal event.
     result : Result
-        ``SUCCESSFUL``, ``EVENT`` (a terminal event) or the reason the run stopped early.
+        ``SUCCESSFUL``, ``EVENT`` (a terminal event), ``ROUNDOFF_LIMITED`` (the end was reached but
+        rtol asked the steps for less than their round-off, see :class:`Result`) or the reason the
+        run stopped early.
     message : str
         The reason in words (``result.message``).
     stats : dict
@@ -170,8 +172,9 @@ class Solution:
         )
 
 
-#: ``Result`` → scipy's ``status``: 0 the end was reached, 1 a terminal event; every other result is −1.
-SCIPY_STATUS = {Result.SUCCESSFUL: 0, Result.EVENT: 1}
+#: ``Result`` → scipy's ``status``: 0 the end was reached (``ROUNDOFF_LIMITED`` too), 1 a terminal event; every
+#: other result is −1.
+SCIPY_STATUS = {Result.SUCCESSFUL: 0, Result.ROUNDOFF_LIMITED: 0, Result.EVENT: 1}
 
 
 def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Progress, failed, finished, throw,
@@ -193,6 +196,11 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         result = Result.INTERRUPTED
     elif int(state.result) == Result.EVENT:
         result = Result.EVENT
+    pi = isinstance(opt.controller, PIController)
+    floored = int(state.controller.n_floored) if pi else None
+    roundoff = bool(floored) and roundoff_may_exceed(floored, float(opt.control.rtol))
+    if result == Result.SUCCESSFUL and roundoff:
+        result = Result.ROUNDOFF_LIMITED
     with_initial = opt.t_eval is None
     t = np.concatenate([[opt.t0], out.t]) if with_initial else out.t
 
@@ -203,8 +211,6 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         return np.concatenate([[x0], rows]) if with_initial else rows
 
     excursions = int(state.stepper.monitor.excursions)
-    pi = isinstance(opt.controller, PIController)
-    floored = int(state.controller.n_floored) if pi else None
     stats = {
         "newton_iterations": out.iterations,
         "residual_norm": out.residual_norm,
@@ -236,6 +242,15 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         sol = DenseOutput(method.pair, dense, method.pieces, q0.shape[-1], lam0.shape[-1], opt.t0, problem, args)
     success = result.success and failed_step is None
     message = result.message
+    if roundoff:
+        roundoff_note = (
+            f"{floored} of the {int(state.n_accepted)} steps asked for less than their round-off: rtol="
+            f"{float(opt.control.rtol):.3g} shared over this interval asks each of them for a local error below "
+            f"{ROUNDOFF_FLOOR:g}·(1 + |y|), which they were allowed instead, up to {floored * ROUNDOFF_FLOOR:.1e} in all; "
+            "the error may exceed rtol. Use more stages (a higher order takes fewer steps) or a looser rtol."
+        )
+        if result == Result.ROUNDOFF_LIMITED:
+            message = f"The end of the integration interval was reached, but {roundoff_note}"
     if failed_step is not None:
         tf, hf = (float(x) for x in opt.controller.proposal(state.controller))
         tried = f" (after {run.recoveries} recovered steps; max_recoveries={opt.max_recoveries})" if opt.max_recoveries else ""
@@ -263,15 +278,10 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         )
         message = f"{message} Warning: {note}"
         warnings.warn(note, RuntimeWarning, stacklevel=4)  # the caller of solve
-    if floored and roundoff_may_exceed(floored, float(opt.control.rtol)):
-        note = (
-            f"{floored} of the {int(state.n_accepted)} steps asked for less than their round-off: rtol="
-            f"{float(opt.control.rtol):.3g} shared over this interval asks each of them for a local error below "
-            f"{ROUNDOFF_FLOOR:g}·(1 + |y|), which they were allowed instead, up to {floored * ROUNDOFF_FLOOR:.1e} in all; "
-            "the error may exceed rtol. Use more stages (a higher order takes fewer steps) or a looser rtol."
-        )
-        message = f"{message} Warning: {note}"
-        warnings.warn(note, RuntimeWarning, stacklevel=4)  # the caller of solve
+    if roundoff:
+        if result != Result.ROUNDOFF_LIMITED:  # a run that also stopped for another reason
+            message = f"{message} Warning: {roundoff_note}"
+        warnings.warn(roundoff_note, RuntimeWarning, stacklevel=4)  # the caller of solve
     return Solution(
         t, column(q0, out.q), column(p0, out.p), column(lam0, out.lam),
         bool(success), result, message, stats, problem, method, args, *events, sol,

@@ -112,8 +112,10 @@ def test_a_long_run_keeps_its_end_point_above_round_off():
 
 def test_the_verdict_lists_warned_runs_apart_but_never_above_1000x():
     """The contract as ``F.verdict`` reads it: above 30 x a run that did not warn is a violation,
-    one that warned of round-off is not (it said so), and above 1000 x rtol both are."""
-    row = dict(problem="p", s=4, rtol=1e-10, success=True)
+    one that warned of round-off is not (it said so); above 1000 x rtol a run that returned
+    SUCCESSFUL is one (stored before 2026-11-29, a warned run did), one that returned
+    ROUNDOFF_LIMITED is not (its status says so)."""
+    row = dict(problem="p", s=4, rtol=1e-10, success=True, status=0)
     ok = dict(row, error=2e-9, ratio=20.0, roundoff_warned=False)
     unwarned = dict(row, error=5e-9, ratio=50.0, roundoff_warned=False)
     warned = dict(row, error=5e-9, ratio=50.0, roundoff_warned=True)
@@ -122,6 +124,7 @@ def test_the_verdict_lists_warned_runs_apart_but_never_above_1000x():
     assert F.verdict([ok, warned]) == []
     assert len(F.verdict([unwarned])) == 1 and len(F.verdict([legacy])) == 1
     assert [v for v in F.verdict([huge]) if "1000 x rtol" in v]
+    assert F.verdict([dict(huge, status=int(L.Result.ROUNDOFF_LIMITED))]) == []
     assert "did not warn: largest 50.00 x" in F.summary([ok, unwarned, warned])
     # the end point of the plain run counts the same way; read back from JSON, NaN is a string
     end = dict(ok, end_error=5e-9, end_ratio=50.0, end_warned=False)
