@@ -34,16 +34,22 @@ def test_global_error_is_proportional_to_rtol(sleigh):
 
 @pytest.mark.parametrize("s", [4])
 def test_embedded_estimate_keeps_its_calibrated_tolerance_constant(s):
-    """The opt-in embedded estimate: the per-s c_tol (C_TOL) brings error/rtol near 1 where
-    c_tol = 1 gave about 0.5 (s = 4) on the knife edge (benchmarks/error_estimate.py, 2026-11-29),
-    and the error scales like c_tol^((2s-2)/s): C_TOL[4] = 1.59 makes it 2.0 times larger."""
-    ex = get_example("knife-edge")
+    """The opt-in embedded estimate: the per-s c_tol (C_TOL) keeps error/rtol within a factor 5
+    of 1 on a smooth problem it was not fitted on, and the error scales like c_tol^((2s-2)/s).
+
+    The vertical rolling disk is a hold-out: C_TOL is fitted on the knife edge, the sleigh and
+    the steady falling disk (``benchmarks/error_estimate.py``), and must never be fitted on this
+    problem. Measured 2026-11-29 at s = 4, rtol 1e-8 over [0, 10]: 1.21 with C_TOL[4] = 1.59,
+    0.61 with c_tol = 1 (ratio 1.98, expected 1.59^1.5 = 2.0). On problems with fast transients
+    the estimate is not faithful at all (``docs/variable-steps.md`` §2, "Hold-outs")."""
+    ex = get_example("vertical-disk")
     method = L.LobattoIIIAIIIB(stages=s)
+    t_end = 10.0
     ratio = {}
     for c_tol in (None, 1.0):
-        sol = L.solve(ex.problem, method, (0.0, 10.0), ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8,
+        sol = L.solve(ex.problem, method, (0.0, t_end), ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8,
                       controller=L.PIController(estimate="embedded", c_tol=c_tol), save_every="final")
-        q, p, _ = ex.exact(10.0)
+        q, p, _ = ex.exact(t_end)
         ratio[c_tol] = max(np.abs(sol.q[-1] - q).max(), np.abs(sol.p[-1] - p).max()) / 1e-8
     assert 0.2 < ratio[None] < 5.0, ratio
     expected = C_TOL[s] ** ((2 * s - 2) / s)
