@@ -20,7 +20,7 @@ to take > 3x that, once its error stops falling below 1e-6 (best error not impro
 three settings: the round-off floor; a plateau above 1e-6 is saturation at loose tolerances,
 not a floor) or drops below 2e-13; ``lib.sweeps.Sweep``):
 
-* **lobattodae adaptive**, s = 3, 4, 5, 6 (``LobattoIIIAIIIB(stages=s)``): ``solve`` with
+* **lobattodae adaptive**, s = 3 … 6 (``LobattoIIIAIIIB(stages=s)``; ``--stages`` for others): ``solve`` with
   rtol = atol = tol, ``save_every="final"``, ``lam0`` given, ``throw=False``; the wall time
   of the whole ``solve`` call (validation, compiled loop, building the ``Solution``). The
   loop alone is in ``loop_s`` (``stats["compile_and_run_time"]``). max ‖φ‖∞ over every
@@ -95,6 +95,11 @@ FLOOR_ABOVE = 1e-6
 NAMES = {"error": "err", "time": "wall_s", "cpu_time": "cpu_s"}
 
 
+#: The adaptive runs' s (``--stages`` for others: s = 7, 8 were no faster on the sleigh at error
+#: 1e-8, ``RESULTS.md`` 2026-11-29 08:26).
+STAGES = (3, 4, 5, 6)
+
+
 def config(quick: bool) -> dict:
     if quick:
         return {"T": 100.0, "repeats": 1, "stages": [3, 5], "const_stages": [5],
@@ -102,7 +107,7 @@ def config(quick: bool) -> dict:
                 "dop_tols": [1e-3, 1e-5, 1e-7, 1e-9, 1e-11], "dfx_tols": [1e-3, 1e-5, 1e-7, 1e-9, 1e-11],
                 "pids": PID_SETS[:1], "ida_tols": [1e-3, 1e-5, 1e-7], "ref_h": (0.1, 0.05),
                 "rev_stages": [5], "rev_h0": [0.4, 0.2, 0.1]}
-    return {"T": 1000.0, "repeats": 3, "stages": [3, 4, 5, 6], "const_stages": [4, 5, 6],
+    return {"T": 1000.0, "repeats": 3, "stages": list(STAGES), "const_stages": [4, 5, 6],
             "lob_tols": half_decades(1e-2, 1e-13), "const_N": [int(round(250 * 2 ** (k / 2))) for k in range(0, 15)],
             "dop_tols": half_decades(1e-3, 1e-13) + [2.3e-14], "dfx_tols": half_decades(1e-3, 1e-15),
             "pids": PID_SETS, "ida_tols": half_decades(1e-3, 1e-12), "ref_h": (0.1, 0.05),
@@ -274,6 +279,7 @@ def summarize(runs) -> dict:
 
 STYLE = {"adaptive s=3": ("#9ecae1", "o", "-"), "adaptive s=4": ("#4292c6", "s", "-"),
          "adaptive s=5": ("#08306b", "D", "-"), "adaptive s=6": ("#6a51a3", "p", "-"),
+         "adaptive s=7": ("#bcbddc", "h", "-"), "adaptive s=8": ("#54278f", "H", "-"),
          "reversible s=5": ("#2ca02c", "*", "-."), "DOP853": ("#ff7f0e", "^", "-"),
          "Dopri8": ("#d62728", "v", "-"), "IDA": ("#9467bd", "P", "-")}
 
@@ -351,6 +357,7 @@ def main(argv=None) -> int:
                     quick={"help": "T = 100, fewer settings, 1 call each"})
     ap.add_argument("--problems", nargs="+", choices=PROBLEMS, default=list(PROBLEMS))
     ap.add_argument("--budget", type=float, default=20.0, help="stop a solver's sweep after a call this long [s]")
+    ap.add_argument("--stages", type=int, nargs="+", help=f"the adaptive runs' s (default {' '.join(map(str, STAGES))})")
     a = cli.start(ap.parse_args(argv))
     suffix = "_quick" if a.quick else ""
     path = results_path(f"adaptive_wp{suffix}.json")
@@ -361,6 +368,8 @@ def main(argv=None) -> int:
         log(ratio_table(out))
         return 0
     cfg = config(a.quick)
+    if a.stages:
+        cfg["stages"] = sorted(set(a.stages))
     start = time.perf_counter()
     meta = run_meta(ida=ida_available()[1], budget_s=a.budget, repeat_limit_s=REPEAT_LIMIT_S, config=cfg,
                     pin_cpu=a.pin_cpu)
