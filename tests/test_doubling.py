@@ -9,6 +9,7 @@ import pytest
 
 import lobattodae as L
 from lobattodae._doubling import StepDoubling, for_error_control
+from lobattodae._results import Result
 from lobattodae.examples import get_example
 
 
@@ -51,6 +52,21 @@ def test_the_kept_result_is_two_half_steps_of_the_method(knife):
     np.testing.assert_allclose(p1, pb, rtol=0, atol=1e-15)
     np.testing.assert_array_equal(info.dense.t0, [0.0, h / 2])
     np.testing.assert_allclose(info.dense.q0[1], qa, atol=1e-15)
+
+
+def test_a_failed_whole_step_ends_the_attempt_without_solving_the_halves(knife):
+    """A whole step whose stage solve fails rejects the attempt whatever the half steps do: they
+    are not solved (the attempt's Newton iterations and Jacobians are the whole step's own) and
+    the retry takes half the size."""
+    method = L.LobattoIIIAIIIB(stages=4, lam_start="consistent", max_iterations=2)
+    q0, p0, lam0 = (jnp.asarray(x) for x in knife.exact(0.0))
+    h = 4.0  # two iterations cannot converge the whole step from constant stages
+    _, _, _, whole, _ = method.step(knife.problem, 0.0, q0, p0, lam0, h, knife.args)
+    assert int(whole.result) != Result.SUCCESSFUL
+    _, _, _, info, _ = StepDoubling(method).step(knife.problem, 0.0, q0, p0, lam0, h, knife.args)
+    assert int(info.result) == int(whole.result)
+    assert int(info.iterations) == int(whole.iterations) and int(info.n_jacobians) == int(whole.n_jacobians)
+    assert float(info.retry) == 0.5
 
 
 def test_for_error_control_is_the_one_place_the_method_is_adapted():

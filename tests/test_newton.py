@@ -49,6 +49,25 @@ def test_a_stale_jacobian_far_away_is_refreshed():
     np.testing.assert_allclose(x, [3.0, 2.0 / 3.0], rtol=1e-14)
 
 
+def test_a_solve_not_asked_for_returns_its_start_and_keeps_the_cache():
+    """``solve=False`` (step doubling's half steps after a failed whole step): no refresh, no
+    iteration counted, the start returned and the cache (inverse, validity, round-off floor)
+    handed back as it came; ``solve=True`` is the plain solve."""
+    options = nw.NewtonOptions()
+    _, _, cache = _solve([1.3, 1.0])
+    cache = cache._replace(floor=jnp.asarray(7.0))
+    run = jax.jit(lambda x, cache, solve: nw.newton_solve(_system, _jac, x, 9.0, cache, options, solve))
+    x0 = jnp.asarray([3.0, 0.5])  # far from the root (3, 2/3) of c = 9: the plain solve refreshes
+    x, info, kept = run(x0, cache, False)
+    np.testing.assert_array_equal(x, x0)
+    assert int(info.result) == Result.SUCCESSFUL and int(info.iterations) == 0 and int(info.n_jacobians) == 0
+    for a, b in zip(kept, cache):
+        np.testing.assert_array_equal(a, b)
+    x, info, fresh = run(x0, cache, True)
+    np.testing.assert_allclose(x, [3.0, 2.0 / 3.0], rtol=1e-14)
+    assert int(info.n_jacobians) >= 1 and not np.array_equal(fresh.inverse, cache.inverse)
+
+
 def test_nonfinite_values_are_a_failure_not_a_nan_success():
     x, info, cache = _solve([jnp.nan, 1.0])
     assert int(info.result) == Result.NONFINITE and not bool(cache.valid)

@@ -64,7 +64,12 @@ whole step starts from its own Jacobian and predictor (kept across steps like th
 an independent extrapolation, not the half steps' result, whose Newton failures are what keeps
 Andrews' steps out of that range (predicted from the halves, its error reached 92 × rtol).
 
-A step costs three Newton solves and three evaluations of the vector field.
+A step costs three Newton solves and three evaluations of the vector field. An attempt whose
+whole step fails to converge is rejected whatever the half steps do, so they are then not
+solved (their stage solves stop after the fast start's iterations: ``solve`` of
+:meth:`~lobattodae.LobattoIIIAIIIB.step`), and the retry takes half the size. On the runs with
+failed solves that halved their cost (Andrews' squeezer at rtol 1e-4: 12–17 % less time;
+``benchmarks/RESULTS.md``, 2026-11-29 08:26).
 
 The three solves are one traced step of the method run three times (``lax.scan`` over
 "whole step, first half, second half"), so the compiled program holds the stage equations
@@ -222,8 +227,9 @@ class StepDoubling:
 
         def sub_step(carry, i):
             """i = 0: the whole step; 1, 2: the half steps (``chain``: where the halves are;
-            ``jacobians``: both factorisations, read and written at index ``j``)."""
-            chain, jacobians, h_jacobians = carry
+            ``jacobians``: both factorisations, read and written at index ``j``; ``whole_failed``:
+            the whole step did not converge, and the halves are not solved)."""
+            chain, jacobians, h_jacobians, whole_failed = carry
             q, p, lam, st = chain
             is_whole, is_second = i == 0, i == 2
             j = jnp.minimum(i, 1)
@@ -232,16 +238,17 @@ class StepDoubling:
             size = jnp.where(is_whole, h, 0.5 * h)
             cache = jax.tree_util.tree_map(lambda x: jax.lax.dynamic_index_in_dim(x, j, keepdims=False), jacobians)
             st = _where(is_whole, whole, st)._replace(jacobian=cache, h_jacobian=h_jacobians[j])
-            q1, p1, lam1, info, new = self.method.step(problem, t, *start, size, args, st)
+            q1, p1, lam1, info, new = self.method.step(problem, t, *start, size, args, st, solve=is_whole | ~whole_failed)
+            whole_failed = whole_failed | (is_whole & (info.result != Result.SUCCESSFUL))
             jacobians = jax.tree_util.tree_map(lambda x, y: jax.lax.dynamic_update_index_in_dim(x, y, j, 0),
                                                jacobians, new.jacobian)
             h_jacobians = h_jacobians.at[j].set(new.h_jacobian)
             new = new._replace(jacobian=None, h_jacobian=None)
             chain = _where(is_whole, chain, (q1, p1, lam1, new))
-            return (chain, jacobians, h_jacobians), (q1, p1, info, new.history, new.lam_hidden)
+            return (chain, jacobians, h_jacobians, whole_failed), (q1, p1, info, new.history, new.lam_hidden)
 
-        carry = ((q0, p0, lam0, state.half), state.jacobians, state.h_jacobians)
-        ((q1, p1, lam1, half), jacobians, h_jacobians), (qs, ps, infos, histories, lams) = jax.lax.scan(
+        carry = ((q0, p0, lam0, state.half), state.jacobians, state.h_jacobians, jnp.asarray(False))
+        ((q1, p1, lam1, half), jacobians, h_jacobians, _), (qs, ps, infos, histories, lams) = jax.lax.scan(
             sub_step, carry, jnp.arange(3))
         y1 = jnp.concatenate([q1, p1])
         diff = y1 - jnp.concatenate([qs[0], ps[0]])
@@ -266,8 +273,8 @@ class StepDoubling:
             resync=infos.resync[1],
             error=error,
             dense=joined(first, second),
-            # only the compared whole step failed: a step of half the size is a solve that has just
-            # converged (the first half), so the retry need not shrink further
+            # the compared whole step failed (and the half steps were not solved): the retry is a step
+            # of the first half's size, whose solve converges where the whole step's size was the cause
             retry=jnp.where(failed[0] & ~jnp.any(failed[1:]), 0.5, jnp.min(infos.retry)),
             share=share,
             resolved=resolved,

@@ -359,8 +359,13 @@ def newton_solve(
     params: Any,
     cache: JacobianCache,
     options: NewtonOptions,
+    solve: Any = None,
 ) -> tuple[jax.Array, NewtonInfo, JacobianCache]:
     """Solve ``fn(x, params) = 0`` from ``x0``; ``jac_fn(x, params) -> (fn(x), ∂fn/∂x)``.
+
+    ``solve`` (a traced bool, or None for always): where False the solve stops after the fast
+    start (no refresh, no further iteration) and returns ``x0``, a successful solve of no
+    iterations and the cache as given (step doubling's half steps after a failed whole step).
 
     Returns the iterate, a :class:`NewtonInfo` and the Jacobian cache to hand to the next
     solve (marked invalid after a failure, so that the next solve starts fresh).
@@ -390,12 +395,17 @@ def newton_solve(
     st = newton_init(x0, cache)
     if options.reuse_jacobian:
         st = jax.tree_util.tree_map(functools.partial(jnp.where, cache.valid), fast_start(fn, params, st, options), st)
+    if solve is not None:  # a solve not asked for ends here (after the fast start: no refresh, no epoch)
+        st = st._replace(x=jnp.where(solve, st.x, x0), result=jnp.where(solve, st.result, Result.SUCCESSFUL),
+                         k=jnp.where(solve, st.k, 0), res_norm=jnp.where(solve, st.res_norm, 0.0))
     out = jax.lax.while_loop(lambda st: ~newton_done(st), epoch, st)
     ok = out.result == Result.SUCCESSFUL
     # where a solve that ended with a fresh Jacobian stopped: the round-off level of the next ones
     floor = jnp.where(jnp.logical_and(ok, ~out.stale), out.nrm_prev, out.cache.floor)
-    cache = out.cache._replace(valid=jnp.logical_and(out.cache.valid, ok), floor=floor)
-    return out.x, NewtonInfo(out.result, out.k, out.res_norm, out.n_jac), cache
+    new = out.cache._replace(valid=jnp.logical_and(out.cache.valid, ok), floor=floor)
+    if solve is not None:
+        new = jax.tree_util.tree_map(functools.partial(jnp.where, solve), new, cache)
+    return out.x, NewtonInfo(out.result, out.k, out.res_norm, out.n_jac), new
 
 
 # -- derivatives of the root ------------------------------------------------------------------

@@ -395,7 +395,7 @@ class LobattoIIIAIIIB:
                                       old._replace(jacobian=None, h_jacobian=None))
         return rest._replace(jacobian=new.jacobian, h_jacobian=new.h_jacobian)
 
-    def step(self, problem, t0, q0, p0, lam0, h, args: Any = None, state: StepperState | None = None):
+    def step(self, problem, t0, q0, p0, lam0, h, args: Any = None, state: StepperState | None = None, solve=None):
         """Take one step of size ``h`` from consistent ``(t0, q0, p0, λ0)``.
 
         Pure and jit/vmap-able; ``h`` may be negative (a step backwards in time).
@@ -416,6 +416,11 @@ class LobattoIIIAIIIB:
             Passed to the problem functions.
         state : StepperState, optional
             What the previous step returned (None for a first step: :meth:`init` makes it).
+        solve : bool, optional
+            Traced. False: the stage equations are not solved (Newton stops after its fast
+            start, reports success with no iterations and keeps the Jacobian as it was; the
+            values returned are not a step of the method). Step doubling passes False to the
+            half steps of an attempt whose whole step failed. Default: always solve.
 
         Returns
         -------
@@ -464,7 +469,7 @@ class LobattoIIIAIIIB:
         h_ok = jnp.abs(h - state.h_jacobian) <= H_CHANGE_REFRESH * jnp.abs(h)
         cache = state.jacobian._replace(valid=jnp.logical_and(state.jacobian.valid, h_ok))
         newton_matrix, exact = (functools.partial(fn, problem, pair, layout) for fn in NEWTON_JACOBIANS[self.jacobian])
-        x, ninfo, cache = newton_solve(residual, newton_matrix, x0, params, cache, self.newton)
+        x, ninfo, cache = newton_solve(residual, newton_matrix, x0, params, cache, self.newton, solve)
         h_jac = jnp.where(ninfo.n_jacobians > 0, h, state.h_jacobian)
         position_constraint = getattr(problem, "position_constraint", None) is not None  # static
 
