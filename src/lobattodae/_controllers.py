@@ -299,8 +299,8 @@ class PIController(_TimeAndEnd):
     where a second rejection in a row uses the power of h by which the error actually fell
     between the two attempts when it is below k (at least 1; ``fac_min`` when it did not fall:
     a fast mode beyond the stability limit); a step whose Newton solve fails is retried with a
-    quarter of the size (``StepInfo.retry``; half, where step doubling's half steps converged and
-    only the compared whole step did not). Factors in
+    quarter of the size (``StepInfo.retry``; half where step doubling's compared whole step
+    failed, which ends the attempt before its half steps are solved). Factors in
     ``[1, hysteresis]`` keep h (and the reused Jacobians, see ``H_CHANGE_REFRESH``) where the
     error also asks for at most that factor (or the step's test is the round-off floor's),
     ``(err* / err)^(1/k) ≤ hysteresis`` with
