@@ -234,3 +234,28 @@ def test_vmapped_solves_evaluate_no_jacobian_that_no_trajectory_asks_for(branch,
     assert np.asarray(out.valid).all()
     one, _, _ = nw.newton_solve(_system, _jac, x0[2], 1.0, nw.empty_jacobian_cache(2, jnp.float64), options)
     np.testing.assert_allclose(x[2], one, rtol=0, atol=1e-15)
+
+
+def test_a_vmapped_solve_not_asked_for_evaluates_no_jacobian():
+    """Under ``vmap`` a trajectory whose solve is not asked for (``solve=False``) stays out of the
+    other trajectories' epochs: its fast start would ask for a refresh (it starts far from the
+    root), but no Jacobian of its is evaluated (counted by a callback on the Jacobian's value, on
+    a CPU, where the refresh's batching rule evaluates only those asked for)."""
+    calls = []
+
+    def jac(x, c):
+        value, j = _jac(x, c)
+        jax.debug.callback(lambda v: calls.append(1), j[0, 0])
+        return value, j
+
+    options = nw.NewtonOptions()
+    _, _, cache = _solve([1.3, 1.0])
+    caches = jax.tree_util.tree_map(lambda a: jnp.stack([a] * 2), cache)
+    x0 = jnp.asarray([[3.0, 0.5], [3.0, 0.5]])  # root (3, 2/3) of c = 9: the kept Jacobian is poor there
+    run = jax.jit(jax.vmap(lambda x, cache, solve: nw.newton_solve(_system, jac, x, 9.0, cache, options, solve)))
+    x, info, out = jax.block_until_ready(run(x0, caches, jnp.asarray([True, False])))
+    n_jac = np.asarray(info.n_jacobians)
+    assert n_jac[0] >= 1 and n_jac[1] == 0 and len(calls) == n_jac[0]
+    np.testing.assert_allclose(x[0], [3.0, 2.0 / 3.0], rtol=1e-14)
+    np.testing.assert_array_equal(x[1], x0[1])
+    np.testing.assert_array_equal(np.asarray(out.inverse)[1], np.asarray(cache.inverse))

@@ -395,9 +395,11 @@ def newton_solve(
     st = newton_init(x0, cache)
     if options.reuse_jacobian:
         st = jax.tree_util.tree_map(functools.partial(jnp.where, cache.valid), fast_start(fn, params, st, options), st)
-    if solve is not None:  # a solve not asked for ends here (after the fast start: no refresh, no epoch)
+    if solve is not None:  # a solve not asked for ends here (after the fast start: no refresh, no epoch;
+        # under vmap the other trajectories' epochs run, and a refresh asked for would be evaluated)
         st = st._replace(x=jnp.where(solve, st.x, x0), result=jnp.where(solve, st.result, Result.SUCCESSFUL),
-                         k=jnp.where(solve, st.k, 0), res_norm=jnp.where(solve, st.res_norm, 0.0))
+                         k=jnp.where(solve, st.k, 0), res_norm=jnp.where(solve, st.res_norm, 0.0),
+                         refresh=st.refresh & solve)
     out = jax.lax.while_loop(lambda st: ~newton_done(st), epoch, st)
     ok = out.result == Result.SUCCESSFUL
     # where a solve that ended with a fresh Jacobian stopped: the round-off level of the next ones
