@@ -21,6 +21,18 @@ def _jac(x, c):
     return _system(x, c), jax.jacfwd(_system)(x, c)
 
 
+def _counted_jacobian(calls):
+    """:func:`_jac`, appending to ``calls`` each time a Jacobian is evaluated (a callback on its
+    value: also under ``vmap`` and ``jit``)."""
+
+    def jac(x, c):
+        value, j = _jac(x, c)
+        jax.debug.callback(lambda v: calls.append(1), j[0, 0])
+        return value, j
+
+    return jac
+
+
 def _solve(x0, c=1.0, cache=None, **kw):
     options = nw.NewtonOptions(**kw)
     cache = nw.empty_jacobian_cache(2, jnp.float64) if cache is None else cache
@@ -211,11 +223,7 @@ def test_vmapped_solves_evaluate_no_jacobian_that_no_trajectory_asks_for(branch,
     if branch == "batch":
         monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     calls = []
-
-    def jac(x, c):
-        value, j = _jac(x, c)
-        jax.debug.callback(lambda v: calls.append(1), j[0, 0])
-        return value, j
+    jac = _counted_jacobian(calls)
 
     options = nw.NewtonOptions()
     _, _, cache = _solve([1.3, 1.0])
@@ -242,11 +250,7 @@ def test_a_vmapped_solve_not_asked_for_evaluates_no_jacobian():
     root), but no Jacobian of its is evaluated (counted by a callback on the Jacobian's value, on
     a CPU, where the refresh's batching rule evaluates only those asked for)."""
     calls = []
-
-    def jac(x, c):
-        value, j = _jac(x, c)
-        jax.debug.callback(lambda v: calls.append(1), j[0, 0])
-        return value, j
+    jac = _counted_jacobian(calls)
 
     options = nw.NewtonOptions()
     _, _, cache = _solve([1.3, 1.0])

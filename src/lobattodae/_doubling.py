@@ -67,9 +67,9 @@ Andrews' steps out of that range (predicted from the halves, its error reached 9
 A step costs three Newton solves and three evaluations of the vector field. An attempt whose
 whole step fails to converge is rejected whatever the half steps do, so they are then not
 solved (their stage solves stop after the fast start's iterations: ``solve`` of
-:meth:`~lobattodae.LobattoIIIAIIIB.step`), and the retry takes half the size. On the runs with
-failed solves that halved their cost (Andrews' squeezer at rtol 1e-4: 12–17 % less time;
-``benchmarks/RESULTS.md``, 2026-11-29 08:26).
+:meth:`~lobattodae.LobattoIIIAIIIB.step`), and the retry takes half the size. A failed attempt
+then costs one solve instead of three: 6–19 % less time on runs with failed solves (Andrews'
+squeezer at rtol 1e-4…1e-6 11–19 %; ``benchmarks/RESULTS.md``, 2026-11-29 09:35).
 
 The three solves are one traced step of the method run three times (``lax.scan`` over
 "whole step, first half, second half"), so the compiled program holds the stage equations
@@ -275,7 +275,7 @@ class StepDoubling:
             dense=joined(first, second),
             # the compared whole step failed (and the half steps were not solved): the retry is a step
             # of the first half's size, whose solve converges where the whole step's size was the cause
-            retry=jnp.where(failed[0] & ~jnp.any(failed[1:]), 0.5, jnp.min(infos.retry)),
+            retry=jnp.where(failed[0], 0.5, jnp.min(infos.retry)),
             share=share,
             resolved=resolved,
         )
