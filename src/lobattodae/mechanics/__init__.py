@@ -57,10 +57,13 @@ from ._rigid import (
 )
 from ._builders import from_lagrangian, from_lagranges_method
 from ._model import LagrangianDAE, LagrangianModel, SymbolicParts
+from ._native import NativeIntegrator, NativeResult
 
 __all__ = [
     "LagrangianDAE",
     "LagrangianModel",
+    "NativeIntegrator",
+    "NativeResult",
     "QuaternionBody",
     "SymbolicParts",
     "bicycle",

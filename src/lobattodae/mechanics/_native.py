@@ -1,0 +1,752 @@
+r"""A native step for models of :mod:`lobattodae.mechanics`: generated C, compiled at first use.
+
+:meth:`LagrangianModel.native <lobattodae.mechanics.LagrangianModel.native>` writes the model's
+functions and the library's scheme as one C program, compiles it with the system's C compiler
+the first time it is asked for (kept in the user cache directory, see below) and runs constant
+steps in it, called through :mod:`ctypes`. On a CPU a step of a small system costs XLA:CPU's
+overhead per kernel (hundreds of tiny kernels per step, about 57 ns each; issue #26), which
+native code does not pay: measured 2–4 × less time per step than ``lobattodae.integrate`` with
+results equal to round-off, and a first result in under a second (``benchmarks/native_step.py``,
+``benchmarks/RESULTS.md``, 2026-11-29 11:15). The JAX path stays the one for ``jax.grad``,
+``vmap``, GPUs, error control, dense output and events: this is a forward integrator of
+constant steps.
+
+**The scheme** is the library's (:mod:`lobattodae._stage_equations`; the rows are written out
+above the C that implements them): unknowns ``(Q_2..Q_s, P_1..P_s, Z_2..Z_s)``, ``Z = hΛ``; the
+step end summed with compensation; the start multiplier by the policy ``lam_start`` of
+:class:`~lobattodae.LobattoIIIAIIIB` (``"auto"``: the paper's scheme re-synchronised when λ's
+drift leaves its band, with the same monitor and constants; ``"previous"``; ``"consistent"``);
+Newton's start from the previous step's stage polynomials with their correction; simplified
+Newton with the matrix assembled from per-stage blocks by forward differences
+(:func:`~lobattodae._stage_equations.stage_jacobian_differences`), its LU factors kept across
+iterations and steps, and the stopping and refresh rules of :mod:`lobattodae._newton` (their
+constants are read from there). The iterates differ from the JAX path's only in rounding and in
+where Newton stops below its tolerance.
+
+**The model** is evaluated as ``lobattodae.mechanics`` derives it (``docs/mechanics.md``):
+``v = M(t, q)⁻¹ (p − a)`` solved numerically (elimination without pivoting, M being symmetric
+positive definite), ``g = ∂L/∂q |_(q̇ = v) + F + μᵀλ``, ``φ = μ v + ν``, each function's outputs
+with their common subexpressions shared (:func:`sympy.cse`); the hidden constraint's multiplier
+``λ(t, q, p)`` solves ``(μ M⁻¹ μᵀ) λ = −(μ M⁻¹ b + μ̇ v + ν̇)``, ``b = ∂L/∂q + F − Ṁ v − ȧ``
+(dots along ``q' = v``, differentiated symbolically). Models with holonomic constraints (each
+step's end projected onto ψ = 0) are refused.
+
+**Compiler and cache.** ``$CC`` when set, else the first of ``cc``, ``gcc``, ``clang`` on the
+``PATH``, with ``-O2`` (no ``-march=native``: a shared cache directory may serve other
+processors). The shared library is kept in ``<cache>/native`` (``<cache>`` as for the compilation cache:
+``$LOBATTODAE_CACHE_DIR``, else ``~/.cache/lobattodae``), named by a hash of its source and the
+compiler command, so a new process loads it instead of compiling; with ``LOBATTODAE_NO_CACHE=1``
+each process compiles into a directory of its own, removed at exit.
+"""
+
+from __future__ import annotations
+
+import atexit
+import ctypes
+import hashlib
+import math
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import sympy as sp
+from sympy.printing.c import C99CodePrinter
+
+from .. import _newton
+from .. import _stepper
+from .._cache import cache_switched_off, default_cache_dir
+from .._errors import LobattoDAEInputError, ShapeError
+from .._options import check_count
+from .._results import Result
+from .._stage_equations import MAX_EXTRAPOLATION_GAIN, extrapolation_gain
+from .._tableau import lobatto_pair
+
+__all__ = ["NativeIntegrator", "NativeResult", "c_compiler", "model_source"]
+
+#: The compiler flags (see the module docstring).
+CFLAGS = ("-O2", "-fPIC", "-shared")
+
+
+class NativeResult(NamedTuple):
+    """What :meth:`NativeIntegrator.integrate` returns (NumPy arrays).
+
+    Attributes
+    ----------
+    q, p : ndarray, shape (n_steps + 1, n)
+        Time-major; row 0 is the initial value, the rows after a failed step are NaN.
+    lam : ndarray, shape (n_steps + 1, m)
+        Row 0 is the start multiplier ``lam0`` (the hidden constraint's when not given).
+    status : Result
+        ``Result.SUCCESSFUL``, else the failed step's code (``MAX_ITERATIONS``, ``DIVERGED``,
+        ``NONFINITE``).
+    n_newton, n_jacobians : int
+        Newton iterations and Newton matrices (each one factorisation) of the run.
+    lam_resets : int
+        Steps that ``lam_start="auto"`` re-synchronised with the hidden constraint.
+    """
+
+    q: np.ndarray
+    p: np.ndarray
+    lam: np.ndarray
+    status: Result
+    n_newton: int
+    n_jacobians: int
+    lam_resets: int
+
+
+# ----------------------------------------------------------------------------- the model
+class _Printer(C99CodePrinter):
+    """C99 with exact float literals and small integer powers as products."""
+
+    def _print_Float(self, expr):
+        return repr(float(expr))
+
+    def _print_Rational(self, expr):
+        return f"({int(expr.p)}.0/{int(expr.q)}.0)"
+
+    def _print_Integer(self, expr):
+        return f"{int(expr)}.0"
+
+    def _print_Pow(self, expr, rational=False):
+        base, exp = expr.as_base_exp()
+        b = self.parenthesize(base, 60)
+        if exp.is_Integer and 1 <= abs(int(exp)) <= 4:
+            prod = "*".join([b] * abs(int(exp)))
+            return f"({prod})" if exp > 0 else f"(1.0/({prod}))"
+        if exp == sp.S.Half:
+            return f"sqrt({self._print(base)})"
+        if exp == -sp.S.Half:
+            return f"(1.0/sqrt({self._print(base)}))"
+        return f"pow({self._print(base)}, {self._print(sp.Float(float(exp)) if exp.is_Rational else exp)})"
+
+
+_PRINTER = _Printer()
+
+
+def _c(expr) -> str:
+    return _PRINTER.doprint(sp.sympify(expr))
+
+
+def _function(name, signature, pre, outputs, symbols) -> str:
+    """A C function ``name(signature)``: read the scalars, evaluate ``pre`` (M row-major, then
+    p − a), solve for v, then the ``outputs`` (``(array, exprs)`` pairs), sharing subexpressions."""
+    n, t, q, p, lam, params, v = symbols
+    flat = [e for _, exprs in outputs for e in exprs]
+    repl, reduced = sp.cse(list(pre) + flat, symbols=sp.numbered_symbols("s_"), order="none")
+    pre_red, out_red = reduced[: len(pre)], reduced[len(pre):]
+    late = set(v)
+    early, after = [], []
+    for sym, expr in repl:
+        line = f"  const double {sym.name} = {_c(expr)};"
+        if expr.free_symbols & late:
+            late.add(sym)
+            after.append(line)
+        else:
+            early.append(line)
+    lines = [f"static void {name}({signature}) {{", "  const double tt = t; (void)tt;"]
+    lines += [f"  const double {x.name} = q[{i}]; (void){x.name};" for i, x in enumerate(q)]
+    lines += [f"  const double {x.name} = p[{i}]; (void){x.name};" for i, x in enumerate(p)]
+    if "lam" in signature:
+        lines += [f"  const double {x.name} = lam[{i}]; (void){x.name};" for i, x in enumerate(lam)]
+    lines += [f"  const double {x.name} = k[{i}]; (void){x.name};" for i, x in enumerate(params)]
+    lines += early
+    lines.append(f"  double mm[{n * n}] = {{{', '.join(_c(e) for e in pre_red[: n * n])}}};")
+    lines.append(f"  double vv[{n}] = {{{', '.join(_c(e) for e in pre_red[n * n:])}}};")
+    lines.append(f"  spd_solve({n}, mm, vv);")
+    lines += [f"  const double {x.name} = vv[{i}]; (void){x.name};" for i, x in enumerate(v)]
+    lines += after
+    pos = 0
+    for array, exprs in outputs:
+        for i in range(len(exprs)):
+            lines.append(f"  {array}[{i}] = {_c(out_red[pos])};")
+            pos += 1
+    lines.append("}")
+    return "\n".join(lines)
+
+
+def model_source(model) -> str:
+    """The C of a model's functions: ``model_fg(t, q, p, lam, k, v, w)`` (``v = f``, ``w = g``),
+    ``model_phi(t, q, p, k, out)`` and ``model_lambda(t, q, p, k, lam)`` (the hidden
+    constraint's multiplier); ``k`` holds ``model.parameters`` in order.
+
+    Raises
+    ------
+    LobattoDAEInputError
+        The model has holonomic constraints (the native step does not project).
+    """
+    if model.n_holonomic:
+        raise LobattoDAEInputError(
+            f"{model.name}: the native step does not project onto holonomic constraints (ψ(t, q) = 0, kept "
+            "by a projection after each step); integrate this model with lobattodae.solve or lobattodae.integrate."
+        )
+    ctx, n, m = model._ctx, model.n, model.m
+    parts = model.symbolic
+    t = sp.Symbol("tt")
+    q = tuple(sp.Symbol(f"q_{i}") for i in range(n))
+    v = tuple(sp.Symbol(f"v_{i}") for i in range(n))
+    p = tuple(sp.Symbol(f"p_{i}") for i in range(n))
+    lam = tuple(sp.Symbol(f"lam_{j}") for j in range(m))
+    params = tuple(sp.Symbol(f"k_{j}") for j in range(len(model.parameters)))
+    rename = {model.t: t, **dict(zip(ctx.q, q)), **dict(zip(ctx.v, v)),
+              **{model._param_symbols[name]: k for name, k in zip(model.parameters, params)}}
+
+    def r(e):
+        return sp.sympify(e).xreplace(ctx.to_internal).xreplace(rename)
+
+    M, a, V, mu, nu, F = (r(x) for x in (parts.mass_matrix, parts.gyroscopic, parts.potential,
+                                          parts.constraint_matrix, parts.constraint_offset, parts.forces))
+    vv = sp.Matrix(v)
+    L = sp.Rational(1, 2) * (vv.T * M * vv)[0, 0] + (sp.Matrix(a).T * vv)[0, 0] - V
+    g0 = [sp.diff(L, qi) + F[i] for i, qi in enumerate(q)]
+    g = [g0[i] + sum((mu[j, i] * lam[j] for j in range(m)), sp.S.Zero) for i in range(n)]
+    phi = [sum((mu[j, i] * v[i] for i in range(n)), sp.S.Zero) + nu[j] for j in range(m)]
+
+    def dot(e):  # the derivative along q' = v at fixed v
+        return sp.diff(e, t) + sum((sp.diff(e, qi) * vi for qi, vi in zip(q, v)), sp.S.Zero)
+
+    b = [g0[i] - sum((dot(M[i, c]) * v[c] for c in range(n)), sp.S.Zero) - dot(a[i]) for i in range(n)]
+    d = [sum((dot(mu[j, c]) * v[c] for c in range(n)), sp.S.Zero) + dot(nu[j]) for j in range(m)]
+    pre = list(M) + [p[i] - a[i] for i in range(n)]
+    symbols = (n, t, q, p, lam, params, v)
+    functions = [
+        _function("model_fg", "double t, const double *q, const double *p, const double *lam, const double *k, "
+                  "double *v, double *w", pre, [("v", list(v)), ("w", g)], symbols),
+        _function("model_phi", "double t, const double *q, const double *p, const double *k, double *out",
+                  pre, [("out", phi)], symbols),
+        _function("model_lambda_parts", "double t, const double *q, const double *p, const double *k, "
+                  "double *b, double *d, double *mu, double *mo", pre,
+                  [("b", b), ("d", d), ("mu", list(mu)), ("mo", list(M))], symbols),
+    ]
+    return f"#define NQ {n}\n#define NM {m}\n" + _SPD_SOLVE_C + "\n".join(functions) + "\n" + _LAMBDA_C
+
+
+_SPD_SOLVE_C = r"""
+/* M x = b for symmetric positive definite M (n x n row-major, overwritten): elimination without pivoting */
+static void spd_solve(int n, double *mm, double *b) {
+  for (int kk = 0; kk < n; kk++) {
+    const double inv = 1.0 / mm[kk*n + kk];
+    for (int i = kk + 1; i < n; i++) {
+      const double fct = mm[i*n + kk] * inv;
+      if (fct == 0.0) continue;
+      for (int j = kk + 1; j < n; j++) mm[i*n + j] -= fct * mm[kk*n + j];
+      b[i] -= fct * b[kk];
+    }
+  }
+  for (int i = n - 1; i >= 0; i--) {
+    double sum = b[i];
+    for (int j = i + 1; j < n; j++) sum -= mm[i*n + j] * b[j];
+    b[i] = sum / mm[i*n + i];
+  }
+}
+"""
+
+_LAMBDA_C = r"""
+/* λ(t, q, p) from the hidden constraint: (μ M⁻¹ μᵀ) λ = −(μ M⁻¹ b + d) */
+static void model_lambda(double t, const double *q, const double *p, const double *k, double *lam) {
+  double b[NQ], d[NM], mu[NM*NQ], mo[NQ*NQ], mm[NQ*NQ], u[NQ], w[NM][NQ], sm[NM*NM];
+  model_lambda_parts(t, q, p, k, b, d, mu, mo);
+  memcpy(mm, mo, sizeof mm); memcpy(u, b, sizeof u); spd_solve(NQ, mm, u);
+  for (int j = 0; j < NM; j++) { memcpy(mm, mo, sizeof mm); memcpy(w[j], mu + j*NQ, sizeof w[j]); spd_solve(NQ, mm, w[j]); }
+  for (int j = 0; j < NM; j++) {
+    double r = 0.0;
+    for (int c = 0; c < NQ; c++) r += mu[j*NQ + c] * u[c];
+    lam[j] = -(r + d[j]);
+    for (int l = 0; l < NM; l++) { double a = 0.0; for (int c = 0; c < NQ; c++) a += mu[j*NQ + c] * w[l][c]; sm[j*NM + l] = a; }
+  }
+  spd_solve(NM, sm, lam);
+}
+"""
+
+
+# ------------------------------------------------------------------------------- the step
+def _constants() -> str:
+    """The numerical policies of the JAX path, read from where they are decided."""
+    values = {
+        "THETA_REFRESH": _newton.THETA_REFRESH, "REFRESH_PREDICTED": _newton.REFRESH_PREDICTED,
+        "REFRESH_ITERATIONS": _newton.REFRESH_ITERATIONS, "THETA_STAGNATION": _newton.THETA_STAGNATION,
+        "STAGNATION_LEVEL": _newton.STAGNATION_LEVEL, "FLOOR_FACTOR": _newton.FLOOR_FACTOR,
+        "ROUNDOFF_LEVEL": _newton.ROUNDOFF_LEVEL, "THETA_DIVERGED": _newton.THETA_DIVERGED,
+        "KAPPA_STALE": _newton.KAPPA_STALE, "H_CHANGE_REFRESH": _stepper.H_CHANGE_REFRESH,
+        "DRIFT_EPOCH": _stepper.DRIFT_EPOCH, "DRIFT_BAND": _stepper.DRIFT_BAND, "DRIFT_FLOOR": _stepper.DRIFT_FLOOR,
+        "R_MAX_ITERATIONS": int(Result.MAX_ITERATIONS), "R_DIVERGED": int(Result.DIVERGED),
+        "R_NONFINITE": int(Result.NONFINITE),
+    }
+    return "".join(f"#define {k} {float(v)!r}\n" if isinstance(v, float) else f"#define {k} {v}\n"
+                   for k, v in values.items())
+
+
+#: The stepping program (after ``#define S``, the model and :func:`_constants`).
+_STEP_C = r"""
+#include <stdlib.h>
+#define NU ((2*S - 1)*NQ + (S - 1)*NM)
+#define OQ 0
+#define OP ((S - 1)*NQ)
+#define OZ ((2*S - 1)*NQ)
+
+typedef struct { double A[S][S], AH[S][S], B[S], C[S]; } Tab;   /* IIIA a_ij, IIIB â_ij, b, c */
+
+/* The stages encoded in x = (Q_2..Q_s, P_1..P_s, Z_2..Z_s), Q_1 = q_0, Λ_1 = lam1, Λ_j = Z_j / h,
+   and their slopes V_j = f(t_j, Q_j, P_j), W_j = g(t_j, Q_j, P_j, Λ_j), t_j = t_0 + c_j h. */
+static void stages(const Tab *tb, double t0, double h, const double *q0, const double *lam1, const double *k,
+                   const double *x, double Q[S][NQ], double P[S][NQ], double L[S][NM], double V[S][NQ], double W[S][NQ]) {
+  memcpy(Q[0], q0, sizeof(double)*NQ);
+  for (int i = 1; i < S; i++) memcpy(Q[i], x + OQ + (i - 1)*NQ, sizeof(double)*NQ);
+  for (int i = 0; i < S; i++) memcpy(P[i], x + OP + i*NQ, sizeof(double)*NQ);
+  memcpy(L[0], lam1, sizeof(double)*NM);
+  for (int i = 1; i < S; i++) for (int j = 0; j < NM; j++) L[i][j] = x[OZ + (i - 1)*NM + j] / h;
+  for (int j = 0; j < S; j++) model_fg(t0 + tb->C[j]*h, Q[j], P[j], L[j], k, V[j], W[j]);
+}
+
+/* p̃_i = p_0 + h Σ_j a_ij W_j (the IIIA momenta of row (3)) */
+static void p_tilde(const Tab *tb, int i, double h, const double *p0, double W[S][NQ], double *pt) {
+  for (int c = 0; c < NQ; c++) { double a = 0.0; for (int j = 0; j < S; j++) a += tb->A[i][j]*W[j][c]; pt[c] = p0[c] + h*a; }
+}
+
+/* The rows of the stage equations at x:
+     (1) Q_i − q_0 − h Σ_j a_ij V_j,   i = 2..s
+     (2) P_i − p_0 − h Σ_j â_ij W_j,   i = 1..s
+     (3) φ(t_i, Q_i, p̃_i),            i = 2..s */
+static void residual(const Tab *tb, double t0, double h, const double *q0, const double *p0, const double *lam1,
+                     const double *k, const double *x, double *r) {
+  double Q[S][NQ], P[S][NQ], L[S][NM], V[S][NQ], W[S][NQ];
+  stages(tb, t0, h, q0, lam1, k, x, Q, P, L, V, W);
+  int o = 0;
+  for (int i = 1; i < S; i++) for (int c = 0; c < NQ; c++) {
+    double a = 0.0; for (int j = 0; j < S; j++) a += tb->A[i][j]*V[j][c];
+    r[o++] = Q[i][c] - q0[c] - h*a; }
+  for (int i = 0; i < S; i++) for (int c = 0; c < NQ; c++) {
+    double a = 0.0; for (int j = 0; j < S; j++) a += tb->AH[i][j]*W[j][c];
+    r[o++] = P[i][c] - p0[c] - h*a; }
+  for (int i = 1; i < S; i++) { double pt[NQ]; p_tilde(tb, i, h, p0, W, pt); model_phi(t0 + tb->C[i]*h, Q[i], pt, k, r + o); o += NM; }
+}
+
+/* LU with partial pivoting in place (row-major), and its solve */
+static void factor(double *lu, int *piv) {
+  for (int kk = 0; kk < NU; kk++) {
+    int pv = kk;
+    for (int i = kk + 1; i < NU; i++) if (fabs(lu[i*NU + kk]) > fabs(lu[pv*NU + kk])) pv = i;
+    piv[kk] = pv;
+    if (pv != kk) for (int j = 0; j < NU; j++) { const double tmp = lu[kk*NU + j]; lu[kk*NU + j] = lu[pv*NU + j]; lu[pv*NU + j] = tmp; }
+    const double inv = 1.0 / lu[kk*NU + kk];
+    for (int i = kk + 1; i < NU; i++) {
+      lu[i*NU + kk] *= inv;
+      const double fct = lu[i*NU + kk];
+      if (fct != 0.0) for (int j = kk + 1; j < NU; j++) lu[i*NU + j] -= fct*lu[kk*NU + j];
+    }
+  }
+}
+
+static void lu_solve(const double *lu, const int *piv, double *b) {
+  for (int kk = 0; kk < NU; kk++) { const double tmp = b[kk]; b[kk] = b[piv[kk]]; b[piv[kk]] = tmp; }
+  for (int i = 0; i < NU; i++) { double sum = b[i]; for (int j = 0; j < i; j++) sum -= lu[i*NU + j]*b[j]; b[i] = sum; }
+  for (int i = NU - 1; i >= 0; i--) { double sum = b[i]; for (int j = i + 1; j < NU; j++) sum -= lu[i*NU + j]*b[j]; b[i] = sum / lu[i*NU + i]; }
+}
+
+/* the forward-difference increment that z + δ represents, δ = √ε max(1, |z|) */
+static double fd_step(double z) { return (z + 1.4901161193847656e-08*fmax(1.0, fabs(z))) - z; }
+
+/* Newton's matrix from per-stage blocks F_x = ∂f/∂x, G_x = ∂g/∂x (at stage k) and Φ_x = ∂φ/∂x
+   (at (Q_i, p̃_i)), by forward differences, then factorised:
+     (1) r_q,i:  δ_ik I − h a_ik F_q,        −h a_ik F_p,              0
+     (2) r_p,i:  −h â_ik G_q,                δ_ik I − h â_ik G_p,      −â_ik G_λ
+     (3) r_φ,i:  δ_ik Φ_q + h a_ik Φ_p G_q,  h a_ik Φ_p G_p,           a_ik Φ_p G_λ
+   (columns Q_k, P_k, Z_k; lobattodae._stage_equations.assemble_jacobian) */
+typedef struct { double fq[S][NQ][NQ], fp[S][NQ][NQ], gq[S][NQ][NQ], gp[S][NQ][NQ], gl[S][NQ][NM], pq[S][NM][NQ], pp[S][NM][NQ]; } Blocks;
+
+static void newton_matrix(const Tab *tb, double t0, double h, const double *q0, const double *p0, const double *lam1,
+                          const double *k, const double *x, Blocks *bl, double *lu, int *piv) {
+  double Q[S][NQ], P[S][NQ], L[S][NM], V[S][NQ], W[S][NQ];
+  stages(tb, t0, h, q0, lam1, k, x, Q, P, L, V, W);
+  for (int j = 0; j < S; j++) {
+    double z[2*NQ + NM], v1[NQ], w1[NQ];
+    memcpy(z, Q[j], sizeof(double)*NQ); memcpy(z + NQ, P[j], sizeof(double)*NQ); memcpy(z + 2*NQ, L[j], sizeof(double)*NM);
+    for (int c = 0; c < 2*NQ + NM; c++) {
+      const double zc = z[c], dz = fd_step(zc);
+      z[c] = zc + dz; model_fg(t0 + tb->C[j]*h, z, z + NQ, z + 2*NQ, k, v1, w1); z[c] = zc;
+      for (int r = 0; r < NQ; r++) {
+        const double dv = (v1[r] - V[j][r]) / dz, dw = (w1[r] - W[j][r]) / dz;
+        if (c < NQ) { bl->fq[j][r][c] = dv; bl->gq[j][r][c] = dw; }
+        else if (c < 2*NQ) { bl->fp[j][r][c - NQ] = dv; bl->gp[j][r][c - NQ] = dw; }
+        else bl->gl[j][r][c - 2*NQ] = dw;
+      }
+    }
+  }
+  for (int i = 1; i < S; i++) {
+    double z[2*NQ], f0[NM], f1[NM];
+    memcpy(z, Q[i], sizeof(double)*NQ); p_tilde(tb, i, h, p0, W, z + NQ);
+    model_phi(t0 + tb->C[i]*h, z, z + NQ, k, f0);
+    for (int c = 0; c < 2*NQ; c++) {
+      const double zc = z[c], dz = fd_step(zc);
+      z[c] = zc + dz; model_phi(t0 + tb->C[i]*h, z, z + NQ, k, f1); z[c] = zc;
+      for (int r = 0; r < NM; r++) { if (c < NQ) bl->pq[i][r][c] = (f1[r] - f0[r]) / dz; else bl->pp[i][r][c - NQ] = (f1[r] - f0[r]) / dz; }
+    }
+  }
+  memset(lu, 0, sizeof(double)*NU*NU);
+  for (int i = 1; i < S; i++) for (int r = 0; r < NQ; r++) {                                  /* (1) */
+    double *row = lu + (OQ + (i - 1)*NQ + r)*NU;
+    for (int kk = 0; kk < S; kk++) {
+      const double ha = h*tb->A[i][kk];
+      for (int c = 0; c < NQ; c++) {
+        if (kk) row[OQ + (kk - 1)*NQ + c] = (i == kk && r == c) - ha*bl->fq[kk][r][c];
+        row[OP + kk*NQ + c] = -ha*bl->fp[kk][r][c];
+      }
+    }
+  }
+  for (int i = 0; i < S; i++) for (int r = 0; r < NQ; r++) {                                  /* (2) */
+    double *row = lu + (OP + i*NQ + r)*NU;
+    for (int kk = 0; kk < S; kk++) {
+      const double ah = tb->AH[i][kk];
+      for (int c = 0; c < NQ; c++) {
+        if (kk) row[OQ + (kk - 1)*NQ + c] = -h*ah*bl->gq[kk][r][c];
+        row[OP + kk*NQ + c] = (i == kk && r == c) - h*ah*bl->gp[kk][r][c];
+      }
+      if (kk) for (int c = 0; c < NM; c++) row[OZ + (kk - 1)*NM + c] = -ah*bl->gl[kk][r][c];
+    }
+  }
+  for (int i = 1; i < S; i++) for (int r = 0; r < NM; r++) {                                  /* (3) */
+    double *row = lu + (OZ + (i - 1)*NM + r)*NU;
+    for (int kk = 0; kk < S; kk++) {
+      const double a = tb->A[i][kk];
+      for (int c = 0; c < NQ; c++) {
+        double sq = 0.0, sp = 0.0;
+        for (int e = 0; e < NQ; e++) { sq += bl->pp[i][r][e]*bl->gq[kk][e][c]; sp += bl->pp[i][r][e]*bl->gp[kk][e][c]; }
+        if (kk) row[OQ + (kk - 1)*NQ + c] = (i == kk ? bl->pq[i][r][c] : 0.0) + h*a*sq;
+        row[OP + kk*NQ + c] = h*a*sp;
+      }
+      if (kk) for (int c = 0; c < NM; c++) {
+        double sl = 0.0; for (int e = 0; e < NQ; e++) sl += bl->pp[i][r][e]*bl->gl[kk][e][c];
+        row[OZ + (kk - 1)*NM + c] = a*sl;
+      }
+    }
+  }
+  factor(lu, piv);
+}
+
+/* What a run keeps from step to step: Newton's LU factors (and the h they were made with), the
+   round-off level where the last solve with a fresh matrix stopped, the predictor's history. */
+typedef struct {
+  double lu[NU*NU]; int piv[NU]; int have_lu; double h_lu, floor_;
+  double Vh[S][NQ], Wh[S][NQ], Lh[S][NM], dV[S][NQ], dW[S][NQ], dL[S][NM], h_prev;
+  int have_slopes, have_corr;
+  Blocks blocks;
+} Solver;
+
+/* l_j(tau), the Lagrange basis of the nodes c */
+static void basis(const Tab *tb, double tau, double *l) {
+  for (int j = 0; j < S; j++) {
+    double v = 1.0;
+    for (int m = 0; m < S; m++) if (m != j) v *= (tau - tb->C[m]) / (tb->C[j] - tb->C[m]);
+    l[j] = v;
+  }
+}
+
+/* One step of size h from (t, q, p) with start multiplier lam1: (q1, p1, lam_out), comp updated
+   (compensated summation). Returns 0 or the Result code of a failed stage solve.
+   stats: [Newton iterations, Newton matrices]. */
+static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxit, double t, double h,
+                const double *q, const double *p, const double *lam1, double *comp, const double *k,
+                double *q1, double *p1, double *lam_out, long *stats) {
+  double x[NU], dx[NU], Vp[S][NQ], Wp[S][NQ], Lp[S][NM];
+  if (fabs(h - sv->h_lu) > H_CHANGE_REFRESH*fabs(h)) sv->have_lu = 0;
+  if (extrapolate && sv->have_slopes) {
+    /* Newton's start: the previous step's stage polynomials at the new stage times, plus what they
+       missed one step before; Q = q_0 + h A V, P = p_0 + h Â W, Z = h Λ */
+    const double on = sv->have_corr ? 1.0 : 0.0;
+    for (int i = 0; i < S; i++) {
+      double l[S]; basis(tb, 1.0 + tb->C[i]*h/sv->h_prev, l);
+      for (int c = 0; c < NQ; c++) {
+        double a = 0.0, b = 0.0;
+        for (int j = 0; j < S; j++) { a += l[j]*sv->Vh[j][c]; b += l[j]*sv->Wh[j][c]; }
+        Vp[i][c] = a; Wp[i][c] = b;
+      }
+      for (int c = 0; c < NM; c++) { double a = 0.0; for (int j = 0; j < S; j++) a += l[j]*sv->Lh[j][c]; Lp[i][c] = a; }
+    }
+    for (int i = 1; i < S; i++) for (int c = 0; c < NQ; c++) {
+      double a = 0.0; for (int j = 0; j < S; j++) a += tb->A[i][j]*(Vp[j][c] + on*sv->dV[j][c]);
+      x[OQ + (i - 1)*NQ + c] = q[c] + h*a; }
+    for (int i = 0; i < S; i++) for (int c = 0; c < NQ; c++) {
+      double a = 0.0; for (int j = 0; j < S; j++) a += tb->AH[i][j]*(Wp[j][c] + on*sv->dW[j][c]);
+      x[OP + i*NQ + c] = p[c] + h*a; }
+    for (int i = 1; i < S; i++) for (int c = 0; c < NM; c++) x[OZ + (i - 1)*NM + c] = h*(Lp[i][c] + on*sv->dL[i][c]);
+  } else {
+    for (int i = 1; i < S; i++) memcpy(x + OQ + (i - 1)*NQ, q, sizeof(double)*NQ);
+    for (int i = 0; i < S; i++) memcpy(x + OP + i*NQ, p, sizeof(double)*NQ);
+    for (int i = 1; i < S; i++) for (int c = 0; c < NM; c++) x[OZ + (i - 1)*NM + c] = h*lam1[c];
+  }
+  /* simplified Newton, the rules of lobattodae._newton: converged at a scaled increment
+     |Δx_i| / (tol (1 + |x_i|)) <= 1 or when the rate predicts it (KAPPA_STALE stricter with a kept
+     matrix); a kept matrix is made afresh at the current iterate when, above round-off, it
+     contracts slower than THETA_REFRESH or its rate predicts more than REFRESH_PREDICTED further
+     iterations, or after REFRESH_ITERATIONS; stagnation at round-off is accepted; a fresh matrix
+     whose increments grow by THETA_DIVERGED has diverged */
+  int result = R_MAX_ITERATIONS, fresh = 0;
+  double prev = 0.0, best = INFINITY, theta_prev = 1.0;
+  for (int it = 0; it < maxit; it++) {
+    if (!sv->have_lu) {
+      newton_matrix(tb, t, h, q, p, lam1, k, x, &sv->blocks, sv->lu, sv->piv);
+      sv->have_lu = 1; sv->h_lu = h; fresh = 1; stats[1]++;
+    }
+    residual(tb, t, h, q, p, lam1, k, x, dx);
+    lu_solve(sv->lu, sv->piv, dx);
+    double nrm = 0.0;
+    for (int i = 0; i < NU; i++) { x[i] -= dx[i]; nrm = fmax(nrm, fabs(dx[i]) / (tol*(1.0 + fabs(x[i])))); }
+    stats[0]++;
+    if (!isfinite(nrm)) { result = R_NONFINITE; break; }
+    const int first = it == 0, stale = !fresh;
+    const double theta = first ? 0.0 : nrm / (prev > 0.0 ? prev : 1.0);
+    const double bst = fmin(best, prev), progress = first ? 0.0 : nrm / (bst > 0.0 ? bst : 1.0);
+    const double th_est = stale ? fmax(theta, theta_prev) : theta;
+    const int rate_known = !first && (!stale || it >= 2);
+    const double kappa = stale ? KAPPA_STALE : 1.0;
+    const double level = fmin(fmax(FLOOR_FACTOR*sv->floor_, ROUNDOFF_LEVEL), STAGNATION_LEVEL);
+    if (nrm <= 1.0 || (rate_known && th_est < 0.5 && th_est/(1.0 - th_est)*nrm <= kappa)
+        || (!first && progress >= THETA_STAGNATION && nrm <= (stale ? level : STAGNATION_LEVEL))) {
+      result = 0; if (fresh) sv->floor_ = nrm; break;
+    }
+    if (!first && !stale && theta >= THETA_DIVERGED) { result = R_DIVERGED; break; }
+    const double remaining = log(fmax(nrm, 1.0)) / -log(fmin(fmax(theta, 1e-300), 0.999));
+    if (stale && !first && ((nrm > level && (theta >= THETA_REFRESH || remaining > REFRESH_PREDICTED))
+                            || it + 1 >= REFRESH_ITERATIONS)) sv->have_lu = 0;
+    best = first ? nrm : fmin(bst, nrm);
+    theta_prev = stale ? theta : 1.0;
+    prev = nrm;
+    fresh = 0;
+  }
+  if (result) { sv->have_lu = 0; return result; }
+  /* (4) q_1 = q_0 + h Σ_j b_j V_j, p_1 = p_0 + h Σ_j b_j W_j, summed with compensation
+     (TwoSum: comp carries what y_1 could not hold); λ_1 = Λ_s */
+  double Q[S][NQ], P[S][NQ], L[S][NM], V[S][NQ], W[S][NQ];
+  stages(tb, t, h, q, lam1, k, x, Q, P, L, V, W);
+  for (int c = 0; c < 2*NQ; c++) {
+    double a = 0.0;
+    for (int j = 0; j < S; j++) a += tb->B[j]*(c < NQ ? V[j][c] : W[j][c - NQ]);
+    const double y0 = c < NQ ? q[c] : p[c - NQ], d = h*a + comp[c];
+    const double y1 = y0 + d, d_kept = y1 - y0, y0_kept = y1 - d_kept;
+    comp[c] = (y0 - y0_kept) + (d - d_kept);
+    if (c < NQ) q1[c] = y1; else p1[c - NQ] = y1;
+  }
+  memcpy(lam_out, L[S - 1], sizeof(double)*NM);
+  if (extrapolate && sv->have_slopes) {
+    for (int i = 0; i < S; i++) {
+      for (int c = 0; c < NQ; c++) { sv->dV[i][c] = V[i][c] - Vp[i][c]; sv->dW[i][c] = W[i][c] - Wp[i][c]; }
+      for (int c = 0; c < NM; c++) sv->dL[i][c] = L[i][c] - Lp[i][c];
+    }
+    sv->have_corr = 1;
+  }
+  memcpy(sv->Vh, V, sizeof V); memcpy(sv->Wh, W, sizeof W); memcpy(sv->Lh, L, sizeof L);
+  sv->h_prev = h; sv->have_slopes = 1;
+  return 0;
+}
+
+/* n_steps steps of size h from (t0, q0, p0) with multiplier lam0; rows 0..n_steps of qs, ps, ls
+   (row 0 given; lam0 = λ(t0, q0, p0) when have_lam0 is 0). mode: 0 "auto", 1 "previous",
+   2 "consistent". stats: [Newton iterations, Newton matrices, λ resets, steps taken].
+   Returns 0 or the failed step's Result code (-1: no memory). */
+int run(int n_steps, double t0, double h, int mode, int have_lam0, double *qs, double *ps, double *ls, const double *k,
+        const double *tab, int extrapolate, double tol, int maxit, long *stats) {
+  Tab tb; memcpy(&tb, tab, sizeof tb);
+  Solver *sv = calloc(1, sizeof(Solver));
+  if (!sv) return -1;
+  double comp[2*NQ] = {0.0}, lam1[NM], hidden[NM];
+  /* the λ drift monitor of lam_start="auto" (LobattoIIIAIIIB._watch) */
+  double level = 0.0, current = 0.0; long count = 0, length = DRIFT_EPOCH; int resync = 0;
+  model_lambda(t0, qs, ps, k, hidden);
+  if (!have_lam0) memcpy(ls, hidden, sizeof hidden);
+  int result = 0;
+  for (int n = 0; n < n_steps; n++) {
+    const double t = t0 + n*h;
+    const double *q = qs + n*NQ, *p = ps + n*NQ, *lam = ls + n*NM;
+    double *q1 = qs + (n + 1)*NQ, *p1 = ps + (n + 1)*NQ, *l1 = ls + (n + 1)*NM;
+    if (mode == 2 || (mode == 0 && resync)) memcpy(lam1, hidden, sizeof lam1); else memcpy(lam1, lam, sizeof lam1);
+    result = step(sv, &tb, extrapolate, tol, maxit, t, h, q, p, lam1, comp, k, q1, p1, l1, stats);
+    if (result) break;
+    stats[3] = n + 1;
+    model_lambda(t0 + (n + 1)*h, q1, p1, k, hidden);
+    if (mode == 0) {
+      double drift = 0.0, size = 0.0;
+      for (int j = 0; j < NM; j++) { drift = fmax(drift, fabs(l1[j] - hidden[j])); size = fmax(size, fabs(l1[j])); }
+      if (resync) { level = 0.0; current = 0.0; count = 0; length = DRIFT_EPOCH; }
+      const int excursion = level > 0.0 && drift > fmax(DRIFT_BAND*level, DRIFT_FLOOR*(1.0 + size));
+      current = fmax(current, drift);
+      if (++count >= length) { level = current; current = 0.0; count = 0; length *= 2; }
+      stats[2] += excursion;
+      resync = excursion;
+    }
+  }
+  free(sv);
+  return result;
+}
+"""
+
+
+def _tableau(s: int) -> np.ndarray:
+    pair = lobatto_pair(s)
+    return np.ascontiguousarray(np.concatenate([pair.a.ravel(), pair.a_hat.ravel(), pair.b, pair.c]), np.float64)
+
+
+def program_source(model, stages: int) -> str:
+    """The whole C program of (model, s): the model's functions, the policies, the step and the run."""
+    return ("#include <math.h>\n#include <string.h>\n" + f"#define S {int(stages)}\n" + model_source(model)
+            + _constants() + _STEP_C)
+
+
+# ------------------------------------------------------------------------ compile and load
+def c_compiler() -> str | None:
+    """``$CC``, else the first of ``cc``, ``gcc``, ``clang`` on the PATH (None if none)."""
+    if os.environ.get("CC"):
+        return os.environ["CC"]
+    for name in ("cc", "gcc", "clang"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+_PROCESS_DIR: list[Path] = []
+
+
+def _library_dir() -> Path:
+    """``<cache>/native``; a directory of this process's own (removed at exit) where the cache is
+    switched off (``LOBATTODAE_NO_CACHE=1``) or cannot be created."""
+    if not cache_switched_off():
+        directory = default_cache_dir() / "native"
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+            return directory
+        except OSError:
+            pass
+    if not _PROCESS_DIR:
+        _PROCESS_DIR.append(Path(tempfile.mkdtemp(prefix="lobattodae-native-")))
+        atexit.register(shutil.rmtree, _PROCESS_DIR[0], True)
+    return _PROCESS_DIR[0]
+
+
+def _compiled(source: str, label: str) -> Path:
+    """The shared library of ``source``: from the cache, or compiled into it (atomically)."""
+    cc = c_compiler()
+    if cc is None:
+        raise LobattoDAEInputError(
+            "the native step needs a C compiler: none of $CC, cc, gcc, clang was found. Install one (e.g. "
+            "gcc) or set CC; lobattodae.integrate and lobattodae.solve need none."
+        )
+    key = hashlib.sha256("\0".join([source, cc, *CFLAGS]).encode()).hexdigest()[:24]
+    directory = _library_dir()
+    target = directory / f"{re.sub(r'[^A-Za-z0-9_-]+', '_', label).strip('_')}-{key}.so"
+    if target.exists():
+        return target
+    with tempfile.TemporaryDirectory(dir=directory) as work:
+        src = Path(work) / "step.c"
+        src.write_text(source)
+        out = Path(work) / "step.so"
+        done = subprocess.run([cc, *CFLAGS, "-o", str(out), str(src), "-lm"], capture_output=True, text=True)
+        if done.returncode != 0:
+            raise RuntimeError(f"the C compiler ({cc}) failed on the generated native step:\n{done.stderr[-4000:]}")
+        os.replace(out, target)
+    return target
+
+
+_DOUBLE_P = ctypes.POINTER(ctypes.c_double)
+
+
+class NativeIntegrator:
+    """Constant steps of a model's Lobatto IIIA-IIIB method in compiled C (see the module docstring).
+
+    Made by :meth:`LagrangianModel.native <lobattodae.mechanics.LagrangianModel.native>` from a
+    :class:`~lobattodae.LobattoIIIAIIIB` (its stages, ``lam_start``, ``tol`` and
+    ``max_iterations``); one per (model, method). Holds no state between calls: each
+    :meth:`integrate` is a run of its own.
+
+    Attributes
+    ----------
+    model : LagrangianModel
+    stages : int
+    lam_start, tol, max_iterations :
+        As in :class:`~lobattodae.LobattoIIIAIIIB`.
+    library : pathlib.Path
+        The compiled shared library.
+    """
+
+    _MODES = {"auto": 0, "previous": 1, "consistent": 2}
+
+    def __init__(self, model, method):
+        self.model, self.stages, self.lam_start = model, method.stages, method.lam_start
+        self.tol, self.max_iterations = method.tol, method.max_iterations
+        self.extrapolate = method._use_extrapolation
+        self.library = _compiled(program_source(model, self.stages), f"{model.name}-s{self.stages}")
+        lib = ctypes.CDLL(str(self.library))
+        self._run = lib.run
+        self._run.argtypes = [ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_int, _DOUBLE_P, _DOUBLE_P,
+                              _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, ctypes.c_int, ctypes.c_double, ctypes.c_int,
+                              ctypes.POINTER(ctypes.c_long)]
+        self._run.restype = ctypes.c_int
+        self._tab = _tableau(self.stages)
+        self._lib = lib
+
+    def __repr__(self) -> str:
+        return (f"NativeIntegrator({self.model.name!r}, stages={self.stages}, lam_start={self.lam_start!r}, "
+                f"library={str(self.library)!r})")
+
+    def _vector(self, name, x, size):
+        arr = np.array(x, dtype=np.float64)
+        if arr.shape != (size,):
+            raise ShapeError(f"{self.model.name}: {name} must have shape ({size},); got {arr.shape}.")
+        if not np.all(np.isfinite(arr)):
+            raise LobattoDAEInputError(f"{self.model.name}: {name} has non-finite entries: {arr}.")
+        return arr
+
+    def integrate(self, t0, h, n_steps: int, q0, p0, lam0=None, args=None) -> NativeResult:
+        """``n_steps`` steps of size ``h`` from ``(t0, q0, p0)``.
+
+        Parameters
+        ----------
+        t0, h : float
+            Initial time and step size (``h < 0``: backwards).
+        n_steps : int
+        q0, p0 : array_like, shape (n,)
+            Consistent initial values (``φ(t0, q0, p0) = 0``; not checked, as in
+            :func:`lobattodae.integrate`).
+        lam0 : array_like, shape (m,), optional
+            The start multiplier; default the hidden constraint's ``λ(t0, q0, p0)``.
+        args : dict
+            ``model.args(...)``.
+
+        Returns
+        -------
+        NativeResult
+            ``(q, p, lam, status, n_newton, n_jacobians, lam_resets)``; the rows after a failed
+            step are NaN.
+
+        Raises
+        ------
+        LobattoDAEInputError
+            A count, a time, a step or an initial value that is not usable (named in the message).
+        """
+        model = self.model
+        n_steps = check_count("n_steps", n_steps)
+        t0, h = float(t0), float(h)
+        if not (math.isfinite(t0) and math.isfinite(h) and h != 0.0):
+            raise LobattoDAEInputError(f"t0 and h must be finite and h nonzero; got t0={t0!r}, h={h!r}.")
+        n, m = model.n, model.m
+        k = np.array([float(v) for v in (model._check_args(args)[name] for name in model.parameters)], np.float64)
+        rows = n_steps + 1
+        qs, ps, ls = np.full((rows, n), np.nan), np.full((rows, n), np.nan), np.full((rows, m), np.nan)
+        qs[0], ps[0] = self._vector("q0", q0, n), self._vector("p0", p0, n)
+        if lam0 is not None:
+            ls[0] = self._vector("lam0", lam0, m)
+        stats = (ctypes.c_long * 4)()
+
+        def ptr(a):
+            return a.ctypes.data_as(_DOUBLE_P)
+
+        code = self._run(n_steps, t0, h, self._MODES[self.lam_start], int(lam0 is not None), ptr(qs), ptr(ps), ptr(ls),
+                         ptr(k), ptr(self._tab), int(self.extrapolate), self.tol, self.max_iterations, stats)
+        if code < 0:
+            raise MemoryError("the native step could not allocate its Newton matrix.")
+        taken = int(stats[3])
+        qs[taken + 1:], ps[taken + 1:], ls[taken + 1:] = np.nan, np.nan, np.nan
+        return NativeResult(qs, ps, ls, Result(code), int(stats[0]), int(stats[1]), int(stats[2]))

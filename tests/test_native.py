@@ -1,0 +1,135 @@
+"""The native step of ``lobattodae.mechanics`` models (issue #26, item 4): generated C that takes
+the library's steps, against ``lobattodae.integrate`` on the same models."""
+
+import numpy as np
+import pytest
+
+import lobattodae as L
+from lobattodae import LobattoDAEInputError, Result, examples, mechanics
+from lobattodae.mechanics import _native
+
+pytestmark = pytest.mark.skipif(_native.c_compiler() is None, reason="no C compiler on this machine")
+
+
+def _jax_run(model, s, lam_start, h, n_steps, q0, p0, lam0, args):
+    method = L.LobattoIIIAIIIB(stages=s, lam_start=lam_start)
+    out = L.integrate(model.problem, method, 0.0, h, n_steps, q0, p0, lam0, args)
+    return [np.asarray(x) for x in out[:3]]
+
+
+def _assert_same_run(native, jax_rows, h):
+    """Every row equal to round-off: 1e-12 relative for q and p; λ is solved for as Z = hλ, to
+    Newton's tolerance in Z, so to 1e-12 / h."""
+    for name, ours, theirs in zip(("q", "p", "lam"), native[:3], jax_rows):
+        scale = 1.0 + np.max(np.abs(theirs))
+        assert np.max(np.abs(ours - theirs)) <= (1e-12 / h if name == "lam" else 1e-12) * scale, name
+
+
+@pytest.fixture(scope="module")
+def disk():
+    ex = examples.falling_rolling_disk(steady=False)
+    model = mechanics.systems.falling_disk()
+    return model, ex, model.args(**ex.args._asdict())
+
+
+@pytest.mark.parametrize("s, lam_start", [(3, "auto"), (4, "previous"), (5, "consistent")])
+def test_the_falling_disk_takes_the_library_s_steps(disk, s, lam_start):
+    """The generated disk (5 coordinates, 2 multipliers, a mass matrix solved per evaluation):
+    every row of 200 steps equal to the JAX path's to round-off, for each multiplier policy."""
+    model, ex, args = disk
+    out = model.native(s, lam_start=lam_start).integrate(0.0, 0.05, 200, ex.q0, ex.p0, ex.lam0, args)
+    assert out.status == Result.SUCCESSFUL and out.n_newton >= 200 and out.n_jacobians >= 1
+    _assert_same_run(out, _jax_run(model, s, lam_start, 0.05, 200, ex.q0, ex.p0, ex.lam0, args), 0.05)
+    # the constraint holds at every step point
+    assert np.max(np.abs(model.constraint_residual(0.0, out.q, out.p, args))) < 1e-13
+
+
+def test_the_sleigh_resynchronises_its_multiplier_where_the_library_does():
+    """The Chaplygin sleigh's multiplier drifts under the paper's scheme: lam_start="auto" starts
+    some steps from the hidden constraint's λ, at the same steps as the JAX path (the rows agree
+    to round-off only if the resets do)."""
+    ex = examples.chaplygin_sleigh()
+    model = mechanics.systems.chaplygin_sleigh()
+    args = model.args(**ex.args._asdict())
+    out = model.native(4).integrate(0.0, 0.05, 2000, ex.q0, ex.p0, ex.lam0, args)
+    assert out.status == Result.SUCCESSFUL and out.lam_resets >= 1
+    q, p, lam = _jax_run(model, 4, "auto", 0.05, 2000, ex.q0, ex.p0, ex.lam0, args)
+    assert np.max(np.abs(out.q - q)) <= 1e-12 * (1 + np.max(np.abs(q)))
+    assert np.max(np.abs(out.p - p)) <= 1e-12 * (1 + np.max(np.abs(p)))
+
+
+def test_a_moving_constraint_and_its_hidden_multiplier():
+    """The ball on a translating turntable: affine constraints with explicit time (ν(t, q)), so the
+    hidden constraint's λ needs the generated ∂/∂t terms. λ0 left out is computed natively and
+    equals the library's consistent_lambda; the run equals the JAX path's."""
+    model = mechanics.systems.turntable_ball()
+    args = model.args(m=1.0, r=0.5, Omega=0.8, Vx=0.3, Vy=-0.2)
+    q0 = np.array([0.4, -0.1, 0.0, 0.0, 0.0])
+    qd0 = model.complete_velocities(0.2, q0, np.array([0.3, -0.2, 0.5, 0.1, 0.2]), args)
+    p0 = model.momenta(0.2, q0, qd0, args)
+    out = model.native(4, lam_start="consistent").integrate(0.2, 0.02, 150, q0, p0, args=args)
+    lam0 = np.asarray(L.consistent_lambda(model.problem, 0.2, q0, p0, np.zeros(2), args))
+    assert np.max(np.abs(out.lam[0] - lam0)) <= 1e-13 * (1 + np.max(np.abs(lam0)))
+    q, p, lam = (np.asarray(x) for x in L.integrate(model.problem, L.LobattoIIIAIIIB(stages=4, lam_start="consistent"),
+                                                     0.2, 0.02, 150, q0, p0, lam0, args)[:3])
+    _assert_same_run(out, (q, p, lam), 0.02)
+
+
+def test_a_failed_step_keeps_the_computed_prefix(disk):
+    """A step far too long for Newton (h = 40 on the disk) fails: the status says so, the rows
+    before it are kept and the rest are NaN."""
+    model, ex, args = disk
+    out = model.native(3).integrate(0.0, 40.0, 5, ex.q0, ex.p0, ex.lam0, args)
+    assert out.status in (Result.DIVERGED, Result.MAX_ITERATIONS, Result.NONFINITE)
+    finite = np.all(np.isfinite(out.q), axis=1)
+    assert finite[0] and not finite[-1]
+    assert np.all(finite[: np.argmin(finite)]) and not np.any(finite[np.argmin(finite):])
+    assert np.array_equal(out.q[0], ex.q0)
+
+
+def test_holonomic_models_are_refused_with_the_way_out():
+    with pytest.raises(LobattoDAEInputError, match="holonomic.*lobattodae.solve"):
+        mechanics.systems.cartesian_pendulum().native(3)
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(n_steps=0), "n_steps must be a positive integer"),
+    (dict(h=0.0), "h nonzero"),
+    (dict(h=float("nan")), "finite"),
+    (dict(q0=np.zeros(4)), r"q0 must have shape \(5,\)"),
+    (dict(p0=np.full(5, np.nan)), "p0 has non-finite entries"),
+    (dict(lam0=np.zeros(3)), r"lam0 must have shape \(2,\)"),
+    (dict(args={"m": 1.0}), "args has missing parameter"),
+])
+def test_bad_input_is_named(disk, change, match):
+    model, ex, args = disk
+    call = dict(t0=0.0, h=0.05, n_steps=10, q0=ex.q0, p0=ex.p0, lam0=ex.lam0, args=args) | change
+    with pytest.raises(LobattoDAEInputError, match=match):
+        model.native(3).integrate(**call)
+
+
+def test_options_are_validated_as_the_method_s():
+    model = mechanics.systems.falling_disk()
+    with pytest.raises(ValueError, match="lam_start"):
+        model.native(3, lam_start="sometimes")
+    with pytest.raises(ValueError, match="tol"):
+        model.native(3, tol=2.0)
+
+
+def test_one_integrator_per_method_and_the_library_is_reused(disk):
+    """``model.native`` keeps its integrators; a new one for the same program loads the compiled
+    library instead of compiling again."""
+    model = disk[0]
+    first = model.native(3)
+    assert model.native(3) is first and model.native(3, lam_start="previous") is not first
+    mtime = first.library.stat().st_mtime_ns
+    again = _native.NativeIntegrator(model, L.LobattoIIIAIIIB(stages=3))
+    assert again.library == first.library and again.library.stat().st_mtime_ns == mtime
+
+
+def test_without_a_compiler_the_message_names_the_fix(monkeypatch):
+    monkeypatch.delenv("CC", raising=False)
+    monkeypatch.setattr(_native.shutil, "which", lambda name: None)
+    model = mechanics.systems.knife_edge()
+    with pytest.raises(LobattoDAEInputError, match="needs a C compiler.*set CC"):
+        model.native(2, tol=3e-14)
