@@ -13,9 +13,10 @@ best of >= 3 calls unless ``--quick``):
    (``lam_start="auto"``: the paper's scheme plus the λ drift monitor, which the C code does
    not have), ``solve`` with ``lam_start="previous"`` (the C code's own scheme, Λ1 = λ0: the
    like-for-like row), and ``jax.jit(integrate)`` (the loop alone, default method), best of 7
-   after a first (compiling) call. Reported: µs/step of each, ours/C, and the
-   errors against the closed form (max over q and p at T, as the C program prints, and
-   over q alone).
+   after a first (compiling) call; and the native step of the generated model
+   (``mechanics.systems.knife_edge().native(s)``, generated C compiled at first use).
+   Reported: µs/step of each, ours/C, and the errors against the closed form (max over q and
+   p at T, as the C program prints, and over q alone).
 2. ``work_precision`` -- cheapest run with max-norm error of q(T) <= 1e-8 at T = 1000, knife
    edge and falling disk in steady rolling (``falling-disk``). lobattodae s = 3, 4, 5
    (both ``lam_start`` variants where offered), constant steps: the smallest N meeting the
@@ -243,7 +244,26 @@ def part_c_limit(cfg: dict, repeats: int) -> dict:
                             "us_per_step": 1e6 * ti.best / N, "err_qp": e_qp_i, "err_q": e_q_i, "status": int(status)}
     log(f"  lobattodae jax.jit(integrate): first call {ti.first:.2f} s, then {1e6 * ti.best / N:.2f} µs/step "
         f"(best of {len(ti.times)}); err(q,p) {e_qp_i:.2e}, status {int(status)}")
+    # the native step of the generated model (lobattodae.mechanics: the same Lagrangian and constraint)
+    from lobattodae import mechanics
+    from lobattodae.mechanics import _native
+
+    if _native.c_compiler() is not None:
+        model = mechanics.systems.knife_edge()
+        margs = model.args(m=1.0, J=1.0, g=1.0)
+        native = model.native(s)
+        tn = best_of(lambda: native.integrate(0.0, h, N, ex.q0, ex.p0, ex.lam0, margs), max(C_LIMIT_REPEATS, repeats),
+                     first=True)
+        e_qp_n, e_q_n = errs(tn.result.q[-1], tn.result.p[-1])
+        out["native"] = {"first_call_s": tn.first, "wall_s": tn.best, "all_s": tn.times, "us_per_step": 1e6 * tn.best / N,
+                         "err_qp": e_qp_n, "err_q": e_q_n, "newton_per_step": tn.result.n_newton / N,
+                         "jacobians": tn.result.n_jacobians}
+        log(f"  lobattodae native (mechanics.systems.knife_edge().native): first call {tn.first:.2f} s (C generated "
+            f"and compiled), then {1e6 * tn.best / N:.2f} µs/step; err(q,p) {e_qp_n:.2e}")
     cu = best_c["us_per_step"]
+    if "native" in out:
+        out["ratio_native_over_c"] = out["native"]["us_per_step"] / cu
+        log(f"  => native/C: {out['ratio_native_over_c']:.2f}x")
     out["ratio_solve_over_c"] = out["solve"]["us_per_step"] / cu
     out["ratio_integrate_over_c"] = out["integrate_jit"]["us_per_step"] / cu
     out["ratio_solve_previous_over_c"] = out["solve_previous"]["us_per_step"] / cu

@@ -53,7 +53,7 @@ def test_the_sleigh_resynchronises_its_multiplier_where_the_library_does():
     args = model.args(**ex.args._asdict())
     out = model.native(4).integrate(0.0, 0.05, 2000, ex.q0, ex.p0, ex.lam0, args)
     assert out.status == Result.SUCCESSFUL and out.lam_resets >= 1
-    q, p, lam = _jax_run(model, 4, "auto", 0.05, 2000, ex.q0, ex.p0, ex.lam0, args)
+    q, p, _ = _jax_run(model, 4, "auto", 0.05, 2000, ex.q0, ex.p0, ex.lam0, args)
     assert np.max(np.abs(out.q - q)) <= 1e-12 * (1 + np.max(np.abs(q)))
     assert np.max(np.abs(out.p - p)) <= 1e-12 * (1 + np.max(np.abs(p)))
 
@@ -87,9 +87,19 @@ def test_a_failed_step_keeps_the_computed_prefix(disk):
     assert np.array_equal(out.q[0], ex.q0)
 
 
-def test_holonomic_models_are_refused_with_the_way_out():
-    with pytest.raises(LobattoDAEInputError, match="holonomic.*lobattodae.solve"):
-        mechanics.systems.cartesian_pendulum().native(3)
+def test_holonomic_constraints_are_kept_by_the_library_s_projection():
+    """The Cartesian pendulum (ψ = x² + y² − ℓ²): each step's end projected onto ψ = 0 and φ = 0
+    as ``lobattodae._projection`` does, so ψ holds to round-off at every step point and the rows
+    equal the JAX path's."""
+    model = mechanics.systems.cartesian_pendulum()
+    args = model.args(m=0.7, g=9.81, l=1.3)
+    q0 = np.array([1.3 * np.sin(0.6), -1.3 * np.cos(0.6)])
+    p0 = model.momenta(0.0, q0, model.complete_velocities(0.0, q0, np.array([0.5, 0.5]), args), args)
+    out = model.native(4).integrate(0.0, 0.02, 300, q0, p0, args=args)
+    assert out.status == Result.SUCCESSFUL
+    assert np.max(np.abs(model.holonomic_residual(0.0, out.q, args))) < 1e-13
+    assert np.max(np.abs(model.constraint_residual(0.0, out.q, out.p, args))) < 1e-13
+    _assert_same_run(out, _jax_run(model, 4, "auto", 0.02, 300, q0, p0, out.lam[0], args), 0.02)
 
 
 @pytest.mark.parametrize("change, match", [

@@ -31,6 +31,7 @@ import functools
 import itertools
 import linecache
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -41,7 +42,7 @@ from sympy.printing.precedence import PRECEDENCE
 from .._errors import LobattoDAEInputError
 from .._linalg import spd_solve
 
-__all__ = ["FunctionSpec", "SolveSpec", "generate_module"]
+__all__ = ["FunctionSpec", "SolveSpec", "common_subexpressions", "generate_module", "plain_symbols"]
 
 _counter = itertools.count()
 
@@ -235,6 +236,63 @@ def _solve_lines(solve: SolveSpec, blocks, pre_red, after) -> list[str]:
     return lines
 
 
+class PlainSymbols(NamedTuple):
+    """The symbols generated code is written in, and the map to them from a model's internal ones."""
+
+    t: sp.Symbol
+    q: tuple
+    v: tuple
+    p: tuple
+    lam: tuple
+    params: tuple  # k_0, k_1, ...: the parameters in the model's order
+    rename: dict  # internal time, coordinates, velocities and parameters -> the symbols above
+
+
+def plain_symbols(ctx, m: int, parameters, param_symbols) -> PlainSymbols:
+    """``t``, ``q_i``, ``v_i``, ``p_i``, ``lam_j``, ``k_j`` for a model of ``ctx.n`` coordinates, m
+    multipliers and the parameters ``parameters`` (names; ``param_symbols``: name -> Symbol)."""
+    n = ctx.n
+    t = sp.Symbol("t")
+    q = tuple(sp.Symbol(f"q_{i}") for i in range(n))
+    v = tuple(sp.Symbol(f"v_{i}") for i in range(n))
+    p = tuple(sp.Symbol(f"p_{i}") for i in range(n))
+    lam = tuple(sp.Symbol(f"lam_{j}") for j in range(m))
+    ks = tuple(sp.Symbol(f"k_{j}") for j in range(len(parameters)))
+    rename = {ctx.t: t, **dict(zip(ctx.q, q)), **dict(zip(ctx.v, v)),
+              **{param_symbols[name]: k for name, k in zip(parameters, ks)}}
+    return PlainSymbols(t, q, v, p, lam, ks, rename)
+
+
+class SharedSubexpressions(NamedTuple):
+    """What :func:`common_subexpressions` returns."""
+
+    replacements: list  # (symbol, expression) pairs of sympy.cse
+    pre: list  # the reduced expressions evaluated before the solve
+    outputs: list  # the reduced outputs
+    early: list  # lines of the replacements that do not need the solve's unknowns
+    late: list  # lines of those that do
+    late_symbols: set  # the unknowns and every replacement that depends on them
+
+
+def common_subexpressions(pre, flat, unknowns, line) -> SharedSubexpressions:
+    """:func:`sympy.cse` over ``pre`` (what a solve needs) and ``flat`` (the outputs), with the
+    replacements written as ``line(symbol, expression)`` and sorted into those evaluated before
+    the solve for ``unknowns`` and those that need its result (shared with the native step's C,
+    :mod:`lobattodae.mechanics._native`)."""
+    pre = list(pre)
+    replacements, reduced = sp.cse(pre + list(flat), symbols=sp.numbered_symbols("s_"), order="none")
+    reduced = list(reduced)
+    late = set(unknowns)
+    early_lines, late_lines = [], []
+    for sym, expr in replacements:
+        if expr.free_symbols & late:
+            late.add(sym)
+            late_lines.append(line(sym, expr))
+        else:
+            early_lines.append(line(sym, expr))
+    return SharedSubexpressions(replacements, reduced[: len(pre)], reduced[len(pre):], early_lines, late_lines, late)
+
+
 def _function_source(spec: FunctionSpec, t: sp.Symbol, params) -> tuple[str, int]:
     """Source text of one function; ``params`` is a sequence of ``(key, Symbol)``."""
     flat, layout = _flatten_outputs(spec.outputs)
@@ -252,21 +310,11 @@ def _function_source(spec: FunctionSpec, t: sp.Symbol, params) -> tuple[str, int
             else:
                 pre += [mat[i, j] for i in block for j in block]
         pre += list(solve.rhs)
-    exprs = pre + flat
-    replacements, reduced = sp.cse(exprs, symbols=sp.numbered_symbols("s_"), order="none")
-    reduced = list(reduced)
-    pre_red, out_red = reduced[: len(pre)], reduced[len(pre):]
-
     unknowns = set(solve.unknowns) if solve is not None else set()
-    late = set(unknowns)
-    early_lines, late_lines = [], []
-    for sym, expr in replacements:
-        line = f"    {sym.name} = {_code(expr)}"
-        if expr.free_symbols & late:
-            late.add(sym)
-            late_lines.append(line)
-        else:
-            early_lines.append(line)
+    shared = common_subexpressions(pre, flat, unknowns, lambda sym, expr: f"    {sym.name} = {_code(expr)}")
+    replacements, pre_red, out_red = shared.replacements, shared.pre, shared.outputs
+    early_lines, late_lines, late = shared.early, shared.late, shared.late_symbols
+    reduced = pre_red + out_red
 
     used = set()
     for _, expr in replacements:

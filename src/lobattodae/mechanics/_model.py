@@ -36,7 +36,7 @@ import sympy as sp
 from .. import _compile
 from .._errors import ShapeError
 from .._problem import PartitionedDAE
-from ._codegen import FunctionSpec, SolveSpec, generate_module
+from ._codegen import FunctionSpec, SolveSpec, generate_module, plain_symbols
 from ._parsing import _Context, _err
 
 __all__ = [
@@ -180,17 +180,8 @@ class LagrangianModel:
 
     # ------------------------------------------------------------------ code generation
     def _generate(self, M, a, V, mu, nu, F, psi, L):
-        ctx, n, m = self._ctx, self.n, self.m
-        t = sp.Symbol("t")
-        q = tuple(sp.Symbol(f"q_{i}") for i in range(n))
-        v = tuple(sp.Symbol(f"v_{i}") for i in range(n))
-        p = tuple(sp.Symbol(f"p_{i}") for i in range(n))
-        lam = tuple(sp.Symbol(f"lam_{j}") for j in range(m))
-        ks = tuple(sp.Symbol(f"k_{j}") for j in range(len(self.parameters)))
-        rename = {ctx.t: t}
-        rename.update(zip(ctx.q, q))
-        rename.update(zip(ctx.v, v))
-        rename.update({self._param_symbols[name]: k for name, k in zip(self.parameters, ks)})
+        n, m = self.n, self.m
+        t, q, v, p, lam, ks, rename = plain_symbols(self._ctx, m, self.parameters, self._param_symbols)
 
         def r(e):
             return sp.sympify(e).xreplace(rename)
@@ -451,9 +442,9 @@ class LagrangianModel:
         cache directory (a new process loads it). 2–4 × less time per step than
         :func:`lobattodae.integrate` on a CPU, with results equal to round-off
         (``benchmarks/RESULTS.md``, 2026-11-29 11:15); forward only: the JAX path stays the one
-        for ``jax.grad``, ``vmap``, GPUs, error control, dense output and events. Models with
-        holonomic constraints are refused (the native step does not project). One integrator is
-        kept per (stages, options).
+        for ``jax.grad``, ``vmap``, GPUs, error control, dense output and events. Holonomic
+        constraints are kept by the library's projection after each step. One integrator is kept
+        per (stages, options).
 
         Parameters
         ----------
@@ -468,8 +459,7 @@ class LagrangianModel:
         Raises
         ------
         LobattoDAEInputError
-            Holonomic constraints, an invalid option, or no C compiler (``$CC``, ``cc``, ``gcc``,
-            ``clang``).
+            An invalid option, or no C compiler (``$CC``, ``cc``, ``gcc``, ``clang``).
 
         Examples
         --------

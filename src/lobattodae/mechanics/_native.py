@@ -28,8 +28,9 @@ where Newton stops below its tolerance.
 positive definite), ``g = ∂L/∂q |_(q̇ = v) + F + μᵀλ``, ``φ = μ v + ν``, each function's outputs
 with their common subexpressions shared (:func:`sympy.cse`); the hidden constraint's multiplier
 ``λ(t, q, p)`` solves ``(μ M⁻¹ μᵀ) λ = −(μ M⁻¹ b + μ̇ v + ν̇)``, ``b = ∂L/∂q + F − Ṁ v − ȧ``
-(dots along ``q' = v``, differentiated symbolically). Models with holonomic constraints (each
-step's end projected onto ψ = 0) are refused.
+(dots along ``q' = v``, differentiated symbolically). With holonomic constraints ψ(t, q) = 0 each
+step's end is projected onto ψ = 0 and φ = 0 as :mod:`lobattodae._projection` does (positions along
+``M⁻¹ ψ_qᵀ`` by its Newton steps, then the momenta by one impulse), with ψ and ψ_q generated.
 
 **Compiler and cache.** ``$CC`` when set, else the first of ``cc``, ``gcc``, ``clang`` on the
 ``PATH``, with ``-O2`` (no ``-march=native``: a shared cache directory may serve other
@@ -57,14 +58,13 @@ import numpy as np
 import sympy as sp
 from sympy.printing.c import C99CodePrinter
 
-from .. import _newton
-from .. import _stepper
+from .. import _newton, _projection, _stepper
 from .._cache import cache_switched_off, default_cache_dir
 from .._errors import LobattoDAEInputError, ShapeError
 from .._options import check_count
 from .._results import Result
-from .._stage_equations import MAX_EXTRAPOLATION_GAIN, extrapolation_gain
 from .._tableau import lobatto_pair
+from ._codegen import common_subexpressions, plain_symbols
 
 __all__ = ["NativeIntegrator", "NativeResult", "c_compiler", "model_source"]
 
@@ -134,31 +134,26 @@ def _c(expr) -> str:
 
 def _function(name, signature, pre, outputs, symbols) -> str:
     """A C function ``name(signature)``: read the scalars, evaluate ``pre`` (M row-major, then
-    p − a), solve for v, then the ``outputs`` (``(array, exprs)`` pairs), sharing subexpressions."""
+    p − a) and solve for v (``pre`` None: no v), then the ``outputs`` (``(array, exprs)`` pairs),
+    sharing subexpressions."""
     n, t, q, p, lam, params, v = symbols
-    flat = [e for _, exprs in outputs for e in exprs]
-    repl, reduced = sp.cse(list(pre) + flat, symbols=sp.numbered_symbols("s_"), order="none")
-    pre_red, out_red = reduced[: len(pre)], reduced[len(pre):]
-    late = set(v)
-    early, after = [], []
-    for sym, expr in repl:
-        line = f"  const double {sym.name} = {_c(expr)};"
-        if expr.free_symbols & late:
-            late.add(sym)
-            after.append(line)
-        else:
-            early.append(line)
-    lines = [f"static void {name}({signature}) {{", "  const double tt = t; (void)tt;"]
+    pre = [] if pre is None else list(pre)
+    shared = common_subexpressions(pre, [e for _, exprs in outputs for e in exprs], v if pre else (),
+                                   lambda sym, expr: f"  const double {sym.name} = {_c(expr)};")
+    pre_red, out_red, early, after = shared.pre, shared.outputs, shared.early, shared.late
+    lines = [f"static void {name}({signature}) {{", "  (void)t;"]
     lines += [f"  const double {x.name} = q[{i}]; (void){x.name};" for i, x in enumerate(q)]
-    lines += [f"  const double {x.name} = p[{i}]; (void){x.name};" for i, x in enumerate(p)]
+    if "*p," in signature:
+        lines += [f"  const double {x.name} = p[{i}]; (void){x.name};" for i, x in enumerate(p)]
     if "lam" in signature:
         lines += [f"  const double {x.name} = lam[{i}]; (void){x.name};" for i, x in enumerate(lam)]
     lines += [f"  const double {x.name} = k[{i}]; (void){x.name};" for i, x in enumerate(params)]
     lines += early
-    lines.append(f"  double mm[{n * n}] = {{{', '.join(_c(e) for e in pre_red[: n * n])}}};")
-    lines.append(f"  double vv[{n}] = {{{', '.join(_c(e) for e in pre_red[n * n:])}}};")
-    lines.append(f"  spd_solve({n}, mm, vv);")
-    lines += [f"  const double {x.name} = vv[{i}]; (void){x.name};" for i, x in enumerate(v)]
+    if pre:
+        lines.append(f"  double mm[{n * n}] = {{{', '.join(_c(e) for e in pre_red[: n * n])}}};")
+        lines.append(f"  double vv[{n}] = {{{', '.join(_c(e) for e in pre_red[n * n:])}}};")
+        lines.append(f"  spd_solve({n}, mm, vv);")
+        lines += [f"  const double {x.name} = vv[{i}]; (void){x.name};" for i, x in enumerate(v)]
     lines += after
     pos = 0
     for array, exprs in outputs:
@@ -171,46 +166,48 @@ def _function(name, signature, pre, outputs, symbols) -> str:
 
 def model_source(model) -> str:
     """The C of a model's functions: ``model_fg(t, q, p, lam, k, v, w)`` (``v = f``, ``w = g``),
-    ``model_phi(t, q, p, k, out)`` and ``model_lambda(t, q, p, k, lam)`` (the hidden
-    constraint's multiplier); ``k`` holds ``model.parameters`` in order.
-
-    Raises
-    ------
-    LobattoDAEInputError
-        The model has holonomic constraints (the native step does not project).
-    """
-    if model.n_holonomic:
-        raise LobattoDAEInputError(
-            f"{model.name}: the native step does not project onto holonomic constraints (ψ(t, q) = 0, kept "
-            "by a projection after each step); integrate this model with lobattodae.solve or lobattodae.integrate."
-        )
-    ctx, n, m = model._ctx, model.n, model.m
+    ``model_phi(t, q, p, k, out)``, ``model_lambda(t, q, p, k, lam)`` (the hidden constraint's
+    multiplier) and, with holonomic constraints, ``project_end(t, q, p, k)``; ``k`` holds
+    ``model.parameters`` in order."""
+    n, m = model.n, model.m
     parts = model.symbolic
-    t = sp.Symbol("tt")
-    q = tuple(sp.Symbol(f"q_{i}") for i in range(n))
-    v = tuple(sp.Symbol(f"v_{i}") for i in range(n))
-    p = tuple(sp.Symbol(f"p_{i}") for i in range(n))
-    lam = tuple(sp.Symbol(f"lam_{j}") for j in range(m))
-    params = tuple(sp.Symbol(f"k_{j}") for j in range(len(model.parameters)))
-    rename = {model.t: t, **dict(zip(ctx.q, q)), **dict(zip(ctx.v, v)),
-              **{model._param_symbols[name]: k for name, k in zip(model.parameters, params)}}
+    t, q, v, p, lam, params, rename = plain_symbols(model._ctx, m, model.parameters, model._param_symbols)
 
-    def r(e):
-        return sp.sympify(e).xreplace(ctx.to_internal).xreplace(rename)
+    def r(e):  # the user's symbols -> the internal ones -> the plain ones of the C
+        return sp.sympify(e).xreplace(model._ctx.to_internal).xreplace(rename)
 
-    M, a, V, mu, nu, F = (r(x) for x in (parts.mass_matrix, parts.gyroscopic, parts.potential,
-                                          parts.constraint_matrix, parts.constraint_offset, parts.forces))
-    vv = sp.Matrix(v)
-    L = sp.Rational(1, 2) * (vv.T * M * vv)[0, 0] + (sp.Matrix(a).T * vv)[0, 0] - V
-    g0 = [sp.diff(L, qi) + F[i] for i, qi in enumerate(q)]
-    g = [g0[i] + sum((mu[j, i] * lam[j] for j in range(m)), sp.S.Zero) for i in range(n)]
-    phi = [sum((mu[j, i] * v[i] for i in range(n)), sp.S.Zero) + nu[j] for j in range(m)]
+    M, a, V, mu, nu, F, psi = (r(x) for x in (parts.mass_matrix, parts.gyroscopic, parts.potential,
+                                               parts.constraint_matrix, parts.constraint_offset, parts.forces,
+                                               parts.holonomic))
+    zero = sp.S.Zero
+    # the derivatives of M (symmetric: each entry once) and a, shared by ∂L/∂q and the time
+    # derivatives along q' = v that the hidden constraint needs
+    dM, da = {}, {}
+
+    def m_(x, i, c):
+        key = (x, min(i, c), max(i, c))
+        if key not in dM:
+            dM[key] = sp.diff(M[key[1], key[2]], x)
+        return dM[key]
+
+    def a_(x, i):
+        if (x, i) not in da:
+            da[x, i] = sp.diff(a[i], x)
+        return da[x, i]
 
     def dot(e):  # the derivative along q' = v at fixed v
-        return sp.diff(e, t) + sum((sp.diff(e, qi) * vi for qi, vi in zip(q, v)), sp.S.Zero)
+        return sp.diff(e, t) + sum((sp.diff(e, qi) * vi for qi, vi in zip(q, v)), zero)
 
-    b = [g0[i] - sum((dot(M[i, c]) * v[c] for c in range(n)), sp.S.Zero) - dot(a[i]) for i in range(n)]
-    d = [sum((dot(mu[j, c]) * v[c] for c in range(n)), sp.S.Zero) + dot(nu[j]) for j in range(m)]
+    # g0 = ∂L/∂q + F,  L = ½ vᵀ M v + aᵀ v − V
+    g0 = [sum((v[i] * v[c] * m_(ql, i, c) for i in range(n) for c in range(n)), zero) / 2
+          + sum((v[i] * a_(ql, i) for i in range(n)), zero) - sp.diff(V, ql) + F[l] for l, ql in enumerate(q)]
+    g = [g0[i] + sum((mu[j, i] * lam[j] for j in range(m)), zero) for i in range(n)]
+    phi = [sum((mu[j, i] * v[i] for i in range(n)), zero) + nu[j] for j in range(m)]
+    # b = g0 − Ṁ v − ȧ,  d = μ̇ v + ν̇
+    b = [g0[i] - sum(((m_(t, i, c) + sum((m_(ql, i, c) * vl for ql, vl in zip(q, v)), zero)) * v[c]
+                      for c in range(n)), zero)
+         - a_(t, i) - sum((a_(ql, i) * vl for ql, vl in zip(q, v)), zero) for i in range(n)]
+    d = [sum((dot(mu[j, c]) * v[c] for c in range(n)), zero) + dot(nu[j]) for j in range(m)]
     pre = list(M) + [p[i] - a[i] for i in range(n)]
     symbols = (n, t, q, p, lam, params, v)
     functions = [
@@ -222,7 +219,17 @@ def model_source(model) -> str:
                   "double *b, double *d, double *mu, double *mo", pre,
                   [("b", b), ("d", d), ("mu", list(mu)), ("mo", list(M))], symbols),
     ]
-    return f"#define NQ {n}\n#define NM {m}\n" + _SPD_SOLVE_C + "\n".join(functions) + "\n" + _LAMBDA_C
+    nh = len(psi)
+    if nh:
+        psi_q = sp.Matrix(psi).jacobian(sp.Matrix(q))
+        functions += [
+            _function("model_psi", "double t, const double *q, const double *k, double *out, double *jac", None,
+                      [("out", list(psi)), ("jac", list(psi_q))], symbols),
+            _function("model_mass_mu", "double t, const double *q, const double *k, double *mo, double *mu", None,
+                      [("mo", list(M)), ("mu", list(mu))], symbols),
+        ]
+    return (f"#define NQ {n}\n#define NM {m}\n#define NH {nh}\n" + _SPD_SOLVE_C + "\n".join(functions) + "\n"
+            + _LAMBDA_C + (_PROJECTION_C if nh else ""))
 
 
 _SPD_SOLVE_C = r"""
@@ -263,6 +270,53 @@ static void model_lambda(double t, const double *q, const double *p, const doubl
 """
 
 
+_PROJECTION_C = r"""
+/* A x = b for a small general A (n x n row-major, overwritten): elimination with partial pivoting */
+static void small_solve(int n, double *a, double *b) {
+  for (int kk = 0; kk < n; kk++) {
+    int pv = kk;
+    for (int i = kk + 1; i < n; i++) if (fabs(a[i*n + kk]) > fabs(a[pv*n + kk])) pv = i;
+    if (pv != kk) { for (int j = 0; j < n; j++) { const double x = a[kk*n + j]; a[kk*n + j] = a[pv*n + j]; a[pv*n + j] = x; }
+                    const double x = b[kk]; b[kk] = b[pv]; b[pv] = x; }
+    for (int i = kk + 1; i < n; i++) {
+      const double fct = a[i*n + kk] / a[kk*n + kk];
+      for (int j = kk + 1; j < n; j++) a[i*n + j] -= fct*a[kk*n + j];
+      b[i] -= fct*b[kk];
+    }
+  }
+  for (int i = n - 1; i >= 0; i--) { double sum = b[i]; for (int j = i + 1; j < n; j++) sum -= a[i*n + j]*b[j]; b[i] = sum / a[i*n + i]; }
+}
+
+/* The end of a step projected onto ψ(t, q) = 0 and φ(t, q, p) = 0 (lobattodae._projection):
+   positions q_1 = q̃ + D κ, D = M(t, q̃)⁻¹ ψ_q(t, q̃)ᵀ, κ by POSITION_NEWTON_ITERATIONS Newton steps
+   κ ← κ − (ψ_q(t, q̃ + Dκ) D)⁻¹ ψ(t, q̃ + Dκ); momenta p_1 = p̃ − μᵀ (μ M⁻¹ μᵀ)⁻¹ φ(t, q_1, p̃) at q_1 */
+static void project_end(double t, double *q, double *p, const double *k) {
+  double mo[NQ*NQ], mu[NM*NQ], mm[NQ*NQ], dd[NH][NQ], psi[NH], jac[NH*NQ], kappa[NH], qq[NQ], jd[NH*NH];
+  model_mass_mu(t, q, k, mo, mu);
+  model_psi(t, q, k, psi, jac);
+  for (int j = 0; j < NH; j++) { memcpy(mm, mo, sizeof mm); memcpy(dd[j], jac + j*NQ, sizeof dd[j]); spd_solve(NQ, mm, dd[j]); }
+  for (int j = 0; j < NH; j++) kappa[j] = 0.0;
+  for (int it = 0; it < POSITION_NEWTON_ITERATIONS; it++) {
+    for (int c = 0; c < NQ; c++) { double x = 0.0; for (int j = 0; j < NH; j++) x += dd[j][c]*kappa[j]; qq[c] = q[c] + x; }
+    model_psi(t, qq, k, psi, jac);
+    for (int a = 0; a < NH; a++) for (int b = 0; b < NH; b++) {
+      double x = 0.0; for (int c = 0; c < NQ; c++) x += jac[a*NQ + c]*dd[b][c]; jd[a*NH + b] = x; }
+    small_solve(NH, jd, psi);
+    for (int j = 0; j < NH; j++) kappa[j] -= psi[j];
+  }
+  for (int c = 0; c < NQ; c++) { double x = 0.0; for (int j = 0; j < NH; j++) x += dd[j][c]*kappa[j]; q[c] += x; }
+  double phi[NM], w[NM][NQ], sm[NM*NM];
+  model_mass_mu(t, q, k, mo, mu);
+  model_phi(t, q, p, k, phi);
+  for (int j = 0; j < NM; j++) { memcpy(mm, mo, sizeof mm); memcpy(w[j], mu + j*NQ, sizeof w[j]); spd_solve(NQ, mm, w[j]); }
+  for (int a = 0; a < NM; a++) for (int b = 0; b < NM; b++) {
+    double x = 0.0; for (int c = 0; c < NQ; c++) x += mu[a*NQ + c]*w[b][c]; sm[a*NM + b] = x; }
+  spd_solve(NM, sm, phi);
+  for (int c = 0; c < NQ; c++) { double x = 0.0; for (int j = 0; j < NM; j++) x += mu[j*NQ + c]*phi[j]; p[c] -= x; }
+}
+"""
+
+
 # ------------------------------------------------------------------------------- the step
 def _constants() -> str:
     """The numerical policies of the JAX path, read from where they are decided."""
@@ -272,7 +326,7 @@ def _constants() -> str:
         "STAGNATION_LEVEL": _newton.STAGNATION_LEVEL, "FLOOR_FACTOR": _newton.FLOOR_FACTOR,
         "ROUNDOFF_LEVEL": _newton.ROUNDOFF_LEVEL, "THETA_DIVERGED": _newton.THETA_DIVERGED,
         "KAPPA_STALE": _newton.KAPPA_STALE, "H_CHANGE_REFRESH": _stepper.H_CHANGE_REFRESH,
-        "DRIFT_EPOCH": _stepper.DRIFT_EPOCH, "DRIFT_BAND": _stepper.DRIFT_BAND, "DRIFT_FLOOR": _stepper.DRIFT_FLOOR,
+        "POSITION_NEWTON_ITERATIONS": _projection.POSITION_NEWTON_ITERATIONS, "DRIFT_EPOCH": _stepper.DRIFT_EPOCH, "DRIFT_BAND": _stepper.DRIFT_BAND, "DRIFT_FLOOR": _stepper.DRIFT_FLOOR,
         "R_MAX_ITERATIONS": int(Result.MAX_ITERATIONS), "R_DIVERGED": int(Result.DIVERGED),
         "R_NONFINITE": int(Result.NONFINITE),
     }
@@ -531,6 +585,9 @@ static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxi
     if (c < NQ) q1[c] = y1; else p1[c - NQ] = y1;
   }
   memcpy(lam_out, L[S - 1], sizeof(double)*NM);
+#if NH > 0
+  project_end(t + h, q1, p1, k);   /* ψ = 0 and φ = 0 at the step point, by projection */
+#endif
   if (extrapolate && sv->have_slopes) {
     for (int i = 0; i < S; i++) {
       for (int c = 0; c < NQ; c++) { sv->dV[i][c] = V[i][c] - Vp[i][c]; sv->dW[i][c] = W[i][c] - Wp[i][c]; }
@@ -590,9 +647,9 @@ def _tableau(s: int) -> np.ndarray:
 
 
 def program_source(model, stages: int) -> str:
-    """The whole C program of (model, s): the model's functions, the policies, the step and the run."""
-    return ("#include <math.h>\n#include <string.h>\n" + f"#define S {int(stages)}\n" + model_source(model)
-            + _constants() + _STEP_C)
+    """The whole C program of (model, s): the policies, the model's functions, the step and the run."""
+    return ("#include <math.h>\n#include <string.h>\n" + f"#define S {int(stages)}\n" + _constants()
+            + model_source(model) + _STEP_C)
 
 
 # ------------------------------------------------------------------------ compile and load
