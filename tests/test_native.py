@@ -84,7 +84,47 @@ def test_a_failed_step_keeps_the_computed_prefix(disk):
     finite = np.all(np.isfinite(out.q), axis=1)
     assert finite[0] and not finite[-1]
     assert np.all(finite[: np.argmin(finite)]) and not np.any(finite[np.argmin(finite):])
-    assert np.array_equal(out.q[0], ex.q0)
+    assert np.array_equal(out.q[0], ex.q0) and out.t[0] == 0.0
+
+
+def test_save_every_keeps_the_same_points(disk):
+    """``save_every=k`` keeps rows 0, k, 2k, ... and the last of the full run, with their times;
+    ``"final"`` the first and the last."""
+    model, ex, args = disk
+    native = model.native(3)
+    full = native.integrate(0.0, 0.05, 23, ex.q0, ex.p0, ex.lam0, args)
+    some = native.integrate(0.0, 0.05, 23, ex.q0, ex.p0, ex.lam0, args, save_every=5)
+    final = native.integrate(0.0, 0.05, 23, ex.q0, ex.p0, ex.lam0, args, save_every="final")
+    kept = [0, 5, 10, 15, 20, 23]
+    for a, b in zip(some[:3], full[:3]):
+        np.testing.assert_array_equal(a, b[kept])
+    np.testing.assert_allclose(some.t, 0.05 * np.array(kept), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(final.q, full.q[[0, 23]])
+    assert final.t[-1] == pytest.approx(23 * 0.05)
+    assert some.n_newton == full.n_newton
+
+
+def test_a_failed_step_with_save_every_ends_on_the_last_point_reached():
+    """A particle pulled into the singularity of V = −1/x (L = ½ ẋ² + ½ ẏ² + 1/x, ẋ = ẏ) from
+    x = 1: steps of 0.1 fail as x nears 0 (after 9 steps). With rows kept every 4 steps, the rows
+    are those of the full run at 0, 4, 8, then the last point the run reached, then NaN."""
+    import sympy as sp
+    from sympy.physics.mechanics import dynamicsymbols
+
+    t = sp.Symbol("t")
+    x, y = dynamicsymbols("x y")
+    model = mechanics.from_lagrangian(x.diff(t) ** 2 / 2 + y.diff(t) ** 2 / 2 + 1 / x, [x, y], t,
+                                      nonholonomic=[x.diff(t) - y.diff(t)], name="fall into 1/x")
+    native = model.native(3)
+    full = native.integrate(0.0, 0.1, 30, [1.0, 0.0], [-0.5, -0.5], args={})
+    out = native.integrate(0.0, 0.1, 30, [1.0, 0.0], [-0.5, -0.5], args={}, save_every=4)
+    assert full.status != Result.SUCCESSFUL and out.status == full.status and out.q.shape == (9, 2)
+    last = int(np.max(np.nonzero(np.all(np.isfinite(full.q), axis=1))))  # the last point reached
+    assert 8 < last < 30 and last % 4
+    kept = [0, 4, 8, last]
+    np.testing.assert_array_equal(out.q[:4], full.q[kept])
+    np.testing.assert_allclose(out.t[:4], 0.1 * np.array(kept), atol=1e-14)
+    assert not np.any(np.isfinite(out.q[4:])) and not np.any(np.isfinite(out.t[4:]))
 
 
 def test_holonomic_constraints_are_kept_by_the_library_s_projection():
@@ -110,6 +150,8 @@ def test_holonomic_constraints_are_kept_by_the_library_s_projection():
     (dict(p0=np.full(5, np.nan)), "p0 has non-finite entries"),
     (dict(lam0=np.zeros(3)), r"lam0 must have shape \(2,\)"),
     (dict(args={"m": 1.0}), "args has missing parameter"),
+    (dict(save_every=0), "save_every must be a positive integer"),
+    (dict(save_every="last"), "save_every must be a positive integer"),
 ])
 def test_bad_input_is_named(disk, change, match):
     model, ex, args = disk

@@ -73,13 +73,15 @@ CFLAGS = ("-O2", "-fPIC", "-shared")
 
 
 class NativeResult(NamedTuple):
-    """What :meth:`NativeIntegrator.integrate` returns (NumPy arrays).
+    """What :meth:`NativeIntegrator.integrate` returns (NumPy arrays; unpacks as ``q, p, lam, status, ...``).
 
     Attributes
     ----------
-    q, p : ndarray, shape (n_steps + 1, n)
-        Time-major; row 0 is the initial value, the rows after a failed step are NaN.
-    lam : ndarray, shape (n_steps + 1, m)
+    q, p : ndarray, shape (rows, n)
+        Time-major, one row per kept step point (``n_steps + 1`` rows by default); row 0 is the
+        initial value. After a failed step the last point reached is the last finite row and the
+        rows after it are NaN.
+    lam : ndarray, shape (rows, m)
         Row 0 is the start multiplier ``lam0`` (the hidden constraint's when not given).
     status : Result
         ``Result.SUCCESSFUL``, else the failed step's code (``MAX_ITERATIONS``, ``DIVERGED``,
@@ -88,6 +90,8 @@ class NativeResult(NamedTuple):
         Newton iterations and Newton matrices (each one factorisation) of the run.
     lam_resets : int
         Steps that ``lam_start="auto"`` re-synchronised with the hidden constraint.
+    t : ndarray, shape (rows,)
+        The times of the rows, ``t0 + j h`` (NaN where the rows are).
     """
 
     q: np.ndarray
@@ -97,6 +101,7 @@ class NativeResult(NamedTuple):
     n_newton: int
     n_jacobians: int
     lam_resets: int
+    t: np.ndarray
 
 
 # ----------------------------------------------------------------------------- the model
@@ -600,33 +605,38 @@ static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxi
   return 0;
 }
 
-/* n_steps steps of size h from (t0, q0, p0) with multiplier lam0; rows 0..n_steps of qs, ps, ls
-   (row 0 given; lam0 = λ(t0, q0, p0) when have_lam0 is 0). mode: 0 "auto", 1 "previous",
-   2 "consistent". stats: [Newton iterations, Newton matrices, λ resets, steps taken].
+/* n_steps steps of size h from (t0, y = (q0, p0, lam0)) (lam0 = λ(t0, q0, p0) when have_lam0 is
+   0). The step points 0, every, 2 every, ... and the last are written to the rows of ts, qs, ps,
+   ls (row 0 holds the initial values; with a failed step, the last point reached is written as
+   the row after the last one written). mode: 0 "auto", 1 "previous", 2 "consistent".
+   stats: [Newton iterations, Newton matrices, λ resets, steps taken, rows written].
    Returns 0 or the failed step's Result code (-1: no memory). */
-int run(int n_steps, double t0, double h, int mode, int have_lam0, double *qs, double *ps, double *ls, const double *k,
-        const double *tab, int extrapolate, double tol, int maxit, long *stats) {
+int run(int n_steps, int every, double t0, double h, int mode, int have_lam0, double *ts, double *qs, double *ps,
+        double *ls, const double *k, const double *tab, int extrapolate, double tol, int maxit, long *stats) {
   Tab tb; memcpy(&tb, tab, sizeof tb);
   Solver *sv = calloc(1, sizeof(Solver));
   if (!sv) return -1;
-  double comp[2*NQ] = {0.0}, lam1[NM], hidden[NM];
+  double comp[2*NQ] = {0.0}, lam1[NM], hidden[NM], y[2][2*NQ + NM];   /* the point and the next */
   /* the λ drift monitor of lam_start="auto" (LobattoIIIAIIIB._watch) */
   double level = 0.0, current = 0.0; long count = 0, length = DRIFT_EPOCH; int resync = 0;
   model_lambda(t0, qs, ps, k, hidden);
   if (!have_lam0) memcpy(ls, hidden, sizeof hidden);
-  int result = 0;
-  for (int n = 0; n < n_steps; n++) {
+  ts[0] = t0;
+  memcpy(y[0], qs, sizeof(double)*NQ); memcpy(y[0] + NQ, ps, sizeof(double)*NQ); memcpy(y[0] + 2*NQ, ls, sizeof(double)*NM);
+  long rows = 1, written = 0;   /* rows written; the step of the last one */
+  int result = 0, cur = 0;
+  for (long n = 0; n < n_steps; n++) {
     const double t = t0 + n*h;
-    const double *q = qs + n*NQ, *p = ps + n*NQ, *lam = ls + n*NM;
-    double *q1 = qs + (n + 1)*NQ, *p1 = ps + (n + 1)*NQ, *l1 = ls + (n + 1)*NM;
-    if (mode == 2 || (mode == 0 && resync)) memcpy(lam1, hidden, sizeof lam1); else memcpy(lam1, lam, sizeof lam1);
-    result = step(sv, &tb, extrapolate, tol, maxit, t, h, q, p, lam1, comp, k, q1, p1, l1, stats);
+    double *y0 = y[cur], *y1 = y[1 - cur];
+    if (mode == 2 || (mode == 0 && resync)) memcpy(lam1, hidden, sizeof lam1); else memcpy(lam1, y0 + 2*NQ, sizeof lam1);
+    result = step(sv, &tb, extrapolate, tol, maxit, t, h, y0, y0 + NQ, lam1, comp, k, y1, y1 + NQ, y1 + 2*NQ, stats);
     if (result) break;
+    cur = 1 - cur;
     stats[3] = n + 1;
-    model_lambda(t0 + (n + 1)*h, q1, p1, k, hidden);
+    model_lambda(t0 + (n + 1)*h, y1, y1 + NQ, k, hidden);
     if (mode == 0) {
       double drift = 0.0, size = 0.0;
-      for (int j = 0; j < NM; j++) { drift = fmax(drift, fabs(l1[j] - hidden[j])); size = fmax(size, fabs(l1[j])); }
+      for (int j = 0; j < NM; j++) { drift = fmax(drift, fabs(y1[2*NQ + j] - hidden[j])); size = fmax(size, fabs(y1[2*NQ + j])); }
       if (resync) { level = 0.0; current = 0.0; count = 0; length = DRIFT_EPOCH; }
       const int excursion = level > 0.0 && drift > fmax(DRIFT_BAND*level, DRIFT_FLOOR*(1.0 + size));
       current = fmax(current, drift);
@@ -634,7 +644,21 @@ int run(int n_steps, double t0, double h, int mode, int have_lam0, double *qs, d
       stats[2] += excursion;
       resync = excursion;
     }
+    if ((n + 1) % every == 0 || n + 1 == n_steps) {
+      ts[rows] = t0 + (n + 1)*h;
+      memcpy(qs + rows*NQ, y1, sizeof(double)*NQ); memcpy(ps + rows*NQ, y1 + NQ, sizeof(double)*NQ);
+      memcpy(ls + rows*NM, y1 + 2*NQ, sizeof(double)*NM);
+      rows++; written = n + 1;
+    }
   }
+  if (result && stats[3] > written) {   /* the last point reached, after the last row written */
+    const double *yl = y[cur];
+    ts[rows] = t0 + stats[3]*h;
+    memcpy(qs + rows*NQ, yl, sizeof(double)*NQ); memcpy(ps + rows*NQ, yl + NQ, sizeof(double)*NQ);
+    memcpy(ls + rows*NM, yl + 2*NQ, sizeof(double)*NM);
+    rows++;
+  }
+  stats[4] = rows;
   free(sv);
   return result;
 }
@@ -737,9 +761,9 @@ class NativeIntegrator:
         self.library = _compiled(program_source(model, self.stages), f"{model.name}-s{self.stages}")
         lib = ctypes.CDLL(str(self.library))
         self._run = lib.run
-        self._run.argtypes = [ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_int, _DOUBLE_P, _DOUBLE_P,
-                              _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, ctypes.c_int, ctypes.c_double, ctypes.c_int,
-                              ctypes.POINTER(ctypes.c_long)]
+        self._run.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_int,
+                              _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, ctypes.c_int,
+                              ctypes.c_double, ctypes.c_int, ctypes.POINTER(ctypes.c_long)]
         self._run.restype = ctypes.c_int
         self._tab = _tableau(self.stages)
         self._lib = lib
@@ -756,7 +780,7 @@ class NativeIntegrator:
             raise LobattoDAEInputError(f"{self.model.name}: {name} has non-finite entries: {arr}.")
         return arr
 
-    def integrate(self, t0, h, n_steps: int, q0, p0, lam0=None, args=None) -> NativeResult:
+    def integrate(self, t0, h, n_steps: int, q0, p0, lam0=None, args=None, *, save_every=1) -> NativeResult:
         """``n_steps`` steps of size ``h`` from ``(t0, q0, p0)``.
 
         Parameters
@@ -771,39 +795,46 @@ class NativeIntegrator:
             The start multiplier; default the hidden constraint's ``λ(t0, q0, p0)``.
         args : dict
             ``model.args(...)``.
+        save_every : int or "final"
+            Keep every k-th step point (and the last), or only the initial and the final one,
+            as in :func:`lobattodae.solve`. Default: every step point.
 
         Returns
         -------
         NativeResult
-            ``(q, p, lam, status, n_newton, n_jacobians, lam_resets)``; the rows after a failed
-            step are NaN.
+            ``(q, p, lam, status, n_newton, n_jacobians, lam_resets, t)``, one row per kept
+            step point (row 0 the initial values); after a failed step the last point reached
+            is the last finite row and the rest are NaN.
 
         Raises
         ------
         LobattoDAEInputError
-            A count, a time, a step or an initial value that is not usable (named in the message).
+            A count, a time, a step, ``save_every`` or an initial value that is not usable
+            (named in the message).
         """
         model = self.model
         n_steps = check_count("n_steps", n_steps)
+        every = n_steps if isinstance(save_every, str) and save_every == "final" else save_every
+        every = check_count("save_every", every, "a positive integer or 'final'")
         t0, h = float(t0), float(h)
         if not (math.isfinite(t0) and math.isfinite(h) and h != 0.0):
             raise LobattoDAEInputError(f"t0 and h must be finite and h nonzero; got t0={t0!r}, h={h!r}.")
         n, m = model.n, model.m
         k = np.array([float(v) for v in (model._check_args(args)[name] for name in model.parameters)], np.float64)
-        rows = n_steps + 1
+        rows = -(-n_steps // every) + 1  # 0, every, 2 every, ..., n_steps (a failed run's last point fits)
+        ts = np.full(rows, np.nan)
         qs, ps, ls = np.full((rows, n), np.nan), np.full((rows, n), np.nan), np.full((rows, m), np.nan)
         qs[0], ps[0] = self._vector("q0", q0, n), self._vector("p0", p0, n)
         if lam0 is not None:
             ls[0] = self._vector("lam0", lam0, m)
-        stats = (ctypes.c_long * 4)()
+        stats = (ctypes.c_long * 5)()
 
         def ptr(a):
             return a.ctypes.data_as(_DOUBLE_P)
 
-        code = self._run(n_steps, t0, h, self._MODES[self.lam_start], int(lam0 is not None), ptr(qs), ptr(ps), ptr(ls),
-                         ptr(k), ptr(self._tab), int(self.extrapolate), self.tol, self.max_iterations, stats)
+        code = self._run(n_steps, every, t0, h, self._MODES[self.lam_start], int(lam0 is not None), ptr(ts), ptr(qs),
+                         ptr(ps), ptr(ls), ptr(k), ptr(self._tab), int(self.extrapolate), self.tol, self.max_iterations,
+                         stats)
         if code < 0:
             raise MemoryError("the native step could not allocate its Newton matrix.")
-        taken = int(stats[3])
-        qs[taken + 1:], ps[taken + 1:], ls[taken + 1:] = np.nan, np.nan, np.nan
-        return NativeResult(qs, ps, ls, Result(code), int(stats[0]), int(stats[1]), int(stats[2]))
+        return NativeResult(qs, ps, ls, Result(code), int(stats[0]), int(stats[1]), int(stats[2]), ts)
