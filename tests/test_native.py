@@ -179,6 +179,35 @@ def test_one_integrator_per_method_and_the_library_is_reused(disk):
     assert again.library == first.library and again.library.stat().st_mtime_ns == mtime
 
 
+def test_a_new_process_finds_the_library_without_generating_the_c(disk, monkeypatch):
+    """The cache is named by the model and s, not by the generated C: a second integrator (as in a
+    new process) loads the library and never calls the generator."""
+    model = disk[0]
+    first = model.native(4)
+    monkeypatch.setattr(_native, "program_source", lambda *a: pytest.fail("the C was generated again"))
+    again = _native.NativeIntegrator(model, L.LobattoIIIAIIIB(stages=4))
+    assert again.library == first.library
+
+
+def test_runs_in_threads_share_nothing(disk):
+    """The C keeps no state between or across calls (ctypes releases the GIL during a run): four
+    runs in threads equal the same runs one after the other."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    model, ex, args = disk
+    native = model.native(3)
+    starts = [np.asarray(ex.p0) * (1 + 0.01 * k) for k in range(4)]
+
+    def run(p0):
+        return native.integrate(0.0, 0.05, 300, ex.q0, p0, args=args).q
+
+    alone = [run(p0) for p0 in starts]
+    with ThreadPoolExecutor(4) as pool:
+        together = list(pool.map(run, starts))
+    for a, b in zip(alone, together):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_without_a_compiler_the_message_names_the_fix(monkeypatch):
     monkeypatch.delenv("CC", raising=False)
     monkeypatch.setattr(_native.shutil, "which", lambda name: None)

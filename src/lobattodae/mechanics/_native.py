@@ -35,8 +35,9 @@ step's end is projected onto ψ = 0 and φ = 0 as :mod:`lobattodae._projection` 
 **Compiler and cache.** ``$CC`` when set, else the first of ``cc``, ``gcc``, ``clang`` on the
 ``PATH``, with ``-O2`` (no ``-march=native``: a shared cache directory may serve other
 processors). The shared library is kept in ``<cache>/native`` (``<cache>`` as for the compilation cache:
-``$LOBATTODAE_CACHE_DIR``, else ``~/.cache/lobattodae``), named by a hash of its source and the
-compiler command, so a new process loads it instead of compiling; with ``LOBATTODAE_NO_CACHE=1``
+``$LOBATTODAE_CACHE_DIR``, else ``~/.cache/lobattodae``), named by a hash of the model (its
+generated JAX source), s, this generator's code and the compiler command, so a new process loads it
+without generating or compiling the C again; with ``LOBATTODAE_NO_CACHE=1``
 each process compiles into a directory of its own, removed at exit.
 """
 
@@ -64,6 +65,7 @@ from .._errors import LobattoDAEInputError, ShapeError
 from .._options import check_count
 from .._results import Result
 from .._tableau import lobatto_pair
+from . import _codegen
 from ._codegen import common_subexpressions, plain_symbols
 
 __all__ = ["NativeIntegrator", "NativeResult", "c_compiler", "model_source"]
@@ -707,19 +709,26 @@ def _library_dir() -> Path:
     return _PROCESS_DIR[0]
 
 
-def _compiled(source: str, label: str) -> Path:
-    """The shared library of ``source``: from the cache, or compiled into it (atomically)."""
+#: What the generated C depends on besides the model and s: this generator's own code.
+_GENERATOR = hashlib.sha256(b"".join(Path(f).read_bytes() for f in (__file__, _codegen.__file__))).hexdigest()
+
+
+def _compiled(make_source, inputs: str, label: str) -> Path:
+    """The shared library of the program ``make_source()`` makes from ``inputs``: from the cache
+    (named by a hash of ``inputs``, the generator's code and the compiler command, so a new process
+    finds it without generating the C again), or generated, compiled and stored (atomically)."""
     cc = c_compiler()
     if cc is None:
         raise LobattoDAEInputError(
             "the native step needs a C compiler: none of $CC, cc, gcc, clang was found. Install one (e.g. "
             "gcc) or set CC; lobattodae.integrate and lobattodae.solve need none."
         )
-    key = hashlib.sha256("\0".join([source, cc, *CFLAGS]).encode()).hexdigest()[:24]
+    key = hashlib.sha256("\0".join([inputs, _GENERATOR, cc, *CFLAGS]).encode()).hexdigest()[:24]
     directory = _library_dir()
     target = directory / f"{re.sub(r'[^A-Za-z0-9_-]+', '_', label).strip('_')}-{key}.so"
     if target.exists():
         return target
+    source = make_source()
     with tempfile.TemporaryDirectory(dir=directory) as work:
         src = Path(work) / "step.c"
         src.write_text(source)
@@ -758,7 +767,9 @@ class NativeIntegrator:
         self.model, self.stages, self.lam_start = model, method.stages, method.lam_start
         self.tol, self.max_iterations = method.tol, method.max_iterations
         self.extrapolate = method._use_extrapolation
-        self.library = _compiled(program_source(model, self.stages), f"{model.name}-s{self.stages}")
+        # the model is all in its generated JAX source (M, a, V, μ, ν, F, ψ and the parameters' order)
+        self.library = _compiled(lambda: program_source(model, self.stages), f"S={self.stages}\n{model.source}",
+                                 f"{model.name}-s{self.stages}")
         lib = ctypes.CDLL(str(self.library))
         self._run = lib.run
         self._run.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_int,
