@@ -5,11 +5,13 @@ functions and the library's scheme as one C program, compiles it with the system
 the first time it is asked for (kept in the user cache directory, see below) and runs constant
 steps in it, called through :mod:`ctypes`. On a CPU a step of a small system costs XLA:CPU's
 overhead per kernel (hundreds of tiny kernels per step, about 57 ns each; issue #26), which
-native code does not pay: measured 2–4 × less time per step than ``lobattodae.integrate`` with
-results equal to round-off, and a first result in under a second (``benchmarks/native_step.py``,
-``benchmarks/RESULTS.md``, 2026-11-29 11:15). The JAX path stays the one for ``jax.grad``,
-``vmap``, GPUs, error control, dense output and events: this is a forward integrator of
-constant steps.
+native code does not pay: measured 2.0–6.7 × less time per step than ``lobattodae.integrate``
+(sleigh, falling disk, s = 3…6; the Whipple bicycle 3.7 ×; 1.24 × the hand-written C limit) with
+results equal to round-off, and a first result in under a second for the falling disk, ten
+seconds for the bicycle (``benchmarks/native_step.py``, ``benchmarks/RESULTS.md``, 2026-11-29
+11:15). The JAX path stays the one for ``jax.grad``, ``vmap``, GPUs, error control, dense output
+and events: this is a forward integrator of constant steps. A run keeps no state outside its
+call and releases Python's global lock, so runs in threads use several CPUs.
 
 **The scheme** is the library's (:mod:`lobattodae._stage_equations`; the rows are written out
 above the C that implements them): unknowns ``(Q_2..Q_s, P_1..P_s, Z_2..Z_s)``, ``Z = hΛ``; the
@@ -34,11 +36,11 @@ step's end is projected onto ψ = 0 and φ = 0 as :mod:`lobattodae._projection` 
 
 **Compiler and cache.** ``$CC`` when set, else the first of ``cc``, ``gcc``, ``clang`` on the
 ``PATH``, with ``-O2`` (no ``-march=native``: a shared cache directory may serve other
-processors). The shared library is kept in ``<cache>/native`` (``<cache>`` as for the compilation cache:
-``$LOBATTODAE_CACHE_DIR``, else ``~/.cache/lobattodae``), named by a hash of the model (its
-generated JAX source), s, this generator's code and the compiler command, so a new process loads it
-without generating or compiling the C again; with ``LOBATTODAE_NO_CACHE=1``
-each process compiles into a directory of its own, removed at exit.
+processors). The shared library is kept in ``<cache>/native`` (``<cache>`` as for the
+compilation cache: ``$LOBATTODAE_CACHE_DIR``, else ``~/.cache/lobattodae``), named by a hash of
+the model (its generated JAX source), s, this generator's code and the compiler command, so a new
+process loads it without generating or compiling the C again; with ``LOBATTODAE_NO_CACHE=1`` each
+process compiles into a directory of its own, removed at exit.
 """
 
 from __future__ import annotations
