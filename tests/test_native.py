@@ -127,6 +127,43 @@ def test_a_failed_step_with_save_every_ends_on_the_last_point_reached():
     assert not np.any(np.isfinite(out.q[4:])) and not np.any(np.isfinite(out.t[4:]))
 
 
+def test_solve_returns_the_solution_lobattodae_solve_returns(disk):
+    """``native.solve`` against ``lobattodae.solve`` with the same constant steps: the same rows
+    (to round-off), the same ``stats`` keys, shapes and counts that do not depend on Newton's
+    path, and a Solution that the library's tools take."""
+    model, ex, args = disk
+    ours = model.native(3).solve((0.0, 10.0), ex.q0, ex.p0, n_steps=200, save_every=7, args=args)
+    theirs = L.solve(model.problem, L.LobattoIIIAIIIB(stages=3), (0.0, 10.0), ex.q0, ex.p0, n_steps=200, save_every=7,
+                     args=args)
+    assert ours.success and ours.result == Result.SUCCESSFUL and ours.status == 0
+    np.testing.assert_array_equal(ours.t, theirs.t)
+    for a, b in ((ours.q, theirs.q), (ours.p, theirs.p)):
+        assert np.max(np.abs(a - b)) <= 1e-12 * (1 + np.max(np.abs(b)))
+    assert set(ours.stats) == set(theirs.stats) == set(L.STATS)
+    for key in ("constraint_residual", "multiplier_drift", "newton_iterations", "residual_norm", "lam_resync"):
+        assert np.shape(ours.stats[key]) == np.shape(theirs.stats[key]), key
+    for key in ("n_steps", "n_rejected", "h", "failed_step", "lam_excursions", "lam_resets"):
+        assert ours.stats[key] == theirs.stats[key], key
+    assert ours.stats["max_constraint_residual"] < 1e-13 and ours.y.shape == theirs.y.shape
+    np.testing.assert_allclose(L.energy_error(ours), L.energy_error(theirs), atol=1e-12)
+    by_dt = model.native(3).solve((0.0, 10.0), ex.q0, ex.p0, dt=0.05, save_every="final", args=args)
+    np.testing.assert_array_equal(by_dt.q[-1], ours.q[-1])
+
+
+def test_solve_checks_the_initial_values_and_reports_a_failure(disk):
+    model, ex, args = disk
+    native = model.native(3)
+    with pytest.raises(L.InconsistentInitialValuesError, match="violate the constraints"):
+        native.solve((0.0, 1.0), ex.q0, np.asarray(ex.p0) + 0.1, n_steps=10, args=args)
+    with pytest.raises(LobattoDAEInputError, match="constant steps: give n_steps or dt"):
+        native.solve((0.0, 1.0), ex.q0, ex.p0, args=args)
+    with pytest.raises(L.NewtonFailure, match=r"Step 0 \(t = 0, h = 40\) failed") as failure:
+        native.solve((0.0, 200.0), ex.q0, ex.p0, n_steps=5, args=args)
+    assert failure.value.step == 0
+    sol = native.solve((0.0, 200.0), ex.q0, ex.p0, n_steps=5, args=args, throw=False)
+    assert not sol.success and sol.stats["failed_step"] == 0 and sol.q.shape == (1, 5)
+
+
 def test_holonomic_constraints_are_kept_by_the_library_s_projection():
     """The Cartesian pendulum (ψ = x² + y² − ℓ²): each step's end projected onto ψ = 0 and φ = 0
     as ``lobattodae._projection`` does, so ψ holds to round-off at every step point and the rows

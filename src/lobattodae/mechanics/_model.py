@@ -454,7 +454,9 @@ class LagrangianModel:
         Returns
         -------
         NativeIntegrator
-            ``integrate(t0, h, n_steps, q0, p0, lam0=None, args=None)`` runs it.
+            ``solve(t_span, q0, p0, n_steps=..., args=...)`` returns a
+            :class:`~lobattodae.Solution` as :func:`lobattodae.solve` does for constant steps;
+            ``integrate(t0, h, n_steps, q0, p0, lam0=None, args=None)`` is the bare run.
 
         Raises
         ------
@@ -464,6 +466,7 @@ class LagrangianModel:
         Examples
         --------
         >>> native = sleigh.native(stages=4)                                   # doctest: +SKIP
+        >>> sol = native.solve((0.0, 100.0), q0, p0, n_steps=2000, args=args)  # doctest: +SKIP
         >>> q, p, lam, status, *_ = native.integrate(0.0, 0.05, 2000, q0, p0, args=args)  # doctest: +SKIP
         """
         from .._stepper import LobattoIIIAIIIB

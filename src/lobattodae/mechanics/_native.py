@@ -54,6 +54,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 from typing import NamedTuple
 
@@ -63,9 +64,10 @@ from sympy.printing.c import C99CodePrinter
 
 from .. import _newton, _projection, _stepper
 from .._cache import cache_switched_off, default_cache_dir
-from .._errors import LobattoDAEInputError, ShapeError
+from .._errors import InconsistentInitialValuesError, LobattoDAEInputError, NewtonFailure, ShapeError
 from .._options import check_count
 from .._results import Result
+from .._solution import Solution
 from .._tableau import lobatto_pair
 from . import _codegen
 from ._codegen import common_subexpressions, plain_symbols
@@ -509,11 +511,11 @@ static void basis(const Tab *tb, double tau, double *l) {
 }
 
 /* One step of size h from (t, q, p) with start multiplier lam1: (q1, p1, lam_out), comp updated
-   (compensated summation). Returns 0 or the Result code of a failed stage solve.
-   stats: [Newton iterations, Newton matrices]. */
+   (compensated summation), res_norm the max-norm of the last evaluated residual. Returns 0 or the
+   Result code of a failed stage solve. stats: [Newton iterations, Newton matrices]. */
 static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxit, double t, double h,
                 const double *q, const double *p, const double *lam1, double *comp, const double *k,
-                double *q1, double *p1, double *lam_out, long *stats) {
+                double *q1, double *p1, double *lam_out, double *res_norm, long *stats) {
   double x[NU], dx[NU], Vp[S][NQ], Wp[S][NQ], Lp[S][NM];
   if (fabs(h - sv->h_lu) > H_CHANGE_REFRESH*fabs(h)) sv->have_lu = 0;
   if (extrapolate && sv->have_slopes) {
@@ -555,6 +557,9 @@ static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxi
       sv->have_lu = 1; sv->h_lu = h; fresh = 1; stats[1]++;
     }
     residual(tb, t, h, q, p, lam1, k, x, dx);
+    double rn = 0.0;
+    for (int i = 0; i < NU; i++) rn = fmax(rn, fabs(dx[i]));
+    *res_norm = rn;
     lu_solve(sv->lu, sv->piv, dx);
     double nrm = 0.0;
     for (int i = 0; i < NU; i++) { x[i] -= dx[i]; nrm = fmax(nrm, fabs(dx[i]) / (tol*(1.0 + fabs(x[i])))); }
@@ -612,46 +617,65 @@ static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxi
 /* n_steps steps of size h from (t0, y = (q0, p0, lam0)) (lam0 = λ(t0, q0, p0) when have_lam0 is
    0). The step points 0, every, 2 every, ... and the last are written to the rows of ts, qs, ps,
    ls (row 0 holds the initial values; with a failed step, the last point reached is written as
-   the row after the last one written). mode: 0 "auto", 1 "previous", 2 "consistent".
-   stats: [Newton iterations, Newton matrices, λ resets, steps taken, rows written].
+   the row after the last one written), with the diagnostics of the step that made each row: its
+   Newton iterations, last residual norm, ‖φ‖∞ at the point, the drift ‖λ − λ(t, q, p)‖∞ and
+   whether it started from the hidden constraint's λ ("auto"). mode: 0 "auto", 1 "previous",
+   2 "consistent". The λ drift monitor (LobattoIIIAIIIB._watch) runs in every mode; only "auto"
+   re-synchronises. stats: [Newton iterations, Newton matrices, monitor excursions, steps taken,
+   rows written, steps re-synchronised]; maxes: [max ‖φ‖∞ over every step point, max drift over every step point].
    Returns 0 or the failed step's Result code (-1: no memory). */
 int run(int n_steps, int every, double t0, double h, int mode, int have_lam0, double *ts, double *qs, double *ps,
-        double *ls, const double *k, const double *tab, int extrapolate, double tol, int maxit, long *stats) {
+        double *ls, int *row_it, double *row_res, double *row_phi, double *row_drift, int *row_resync,
+        const double *k, const double *tab, int extrapolate, double tol, int maxit, long *stats, double *maxes) {
   Tab tb; memcpy(&tb, tab, sizeof tb);
   Solver *sv = calloc(1, sizeof(Solver));
   if (!sv) return -1;
-  double comp[2*NQ] = {0.0}, lam1[NM], hidden[NM], y[2][2*NQ + NM];   /* the point and the next */
-  /* the λ drift monitor of lam_start="auto" (LobattoIIIAIIIB._watch) */
+  double comp[2*NQ] = {0.0}, lam1[NM], hidden[NM], phi[NM], y[2][2*NQ + NM];   /* the point and the next */
   double level = 0.0, current = 0.0; long count = 0, length = DRIFT_EPOCH; int resync = 0;
   model_lambda(t0, qs, ps, k, hidden);
   if (!have_lam0) memcpy(ls, hidden, sizeof hidden);
   ts[0] = t0;
+  model_phi(t0, qs, ps, k, phi);
+  row_phi[0] = 0.0;
+  for (int j = 0; j < NM; j++) row_phi[0] = fmax(row_phi[0], fabs(phi[j]));
+  row_drift[0] = 0.0; row_it[0] = 0; row_res[0] = 0.0; row_resync[0] = 0;
+  maxes[0] = row_phi[0]; maxes[1] = 0.0;
   memcpy(y[0], qs, sizeof(double)*NQ); memcpy(y[0] + NQ, ps, sizeof(double)*NQ); memcpy(y[0] + 2*NQ, ls, sizeof(double)*NM);
   long rows = 1, written = 0;   /* rows written; the step of the last one */
-  int result = 0, cur = 0;
+  int result = 0, cur = 0, it_last = 0, resync_last = 0;
+  double res_last = 0.0, phi_last = row_phi[0], drift_last = 0.0;
   for (long n = 0; n < n_steps; n++) {
     const double t = t0 + n*h;
     double *y0 = y[cur], *y1 = y[1 - cur];
-    if (mode == 2 || (mode == 0 && resync)) memcpy(lam1, hidden, sizeof lam1); else memcpy(lam1, y0 + 2*NQ, sizeof lam1);
-    result = step(sv, &tb, extrapolate, tol, maxit, t, h, y0, y0 + NQ, lam1, comp, k, y1, y1 + NQ, y1 + 2*NQ, stats);
+    const int started_hidden = mode == 2 || (mode == 0 && resync);
+    if (started_hidden) memcpy(lam1, hidden, sizeof lam1); else memcpy(lam1, y0 + 2*NQ, sizeof lam1);
+    const long it0 = stats[0];
+    double rn = 0.0;
+    result = step(sv, &tb, extrapolate, tol, maxit, t, h, y0, y0 + NQ, lam1, comp, k, y1, y1 + NQ, y1 + 2*NQ, &rn, stats);
     if (result) break;
     cur = 1 - cur;
     stats[3] = n + 1;
-    model_lambda(t0 + (n + 1)*h, y1, y1 + NQ, k, hidden);
-    if (mode == 0) {
-      double drift = 0.0, size = 0.0;
-      for (int j = 0; j < NM; j++) { drift = fmax(drift, fabs(y1[2*NQ + j] - hidden[j])); size = fmax(size, fabs(y1[2*NQ + j])); }
-      if (resync) { level = 0.0; current = 0.0; count = 0; length = DRIFT_EPOCH; }
-      const int excursion = level > 0.0 && drift > fmax(DRIFT_BAND*level, DRIFT_FLOOR*(1.0 + size));
-      current = fmax(current, drift);
-      if (++count >= length) { level = current; current = 0.0; count = 0; length *= 2; }
-      stats[2] += excursion;
-      resync = excursion;
-    }
+    const double t1 = t0 + (n + 1)*h;
+    model_lambda(t1, y1, y1 + NQ, k, hidden);
+    model_phi(t1, y1, y1 + NQ, k, phi);
+    double drift = 0.0, size = 0.0, phin = 0.0;
+    for (int j = 0; j < NM; j++) { drift = fmax(drift, fabs(y1[2*NQ + j] - hidden[j])); size = fmax(size, fabs(y1[2*NQ + j]));
+                                   phin = fmax(phin, fabs(phi[j])); }
+    maxes[0] = fmax(maxes[0], phin); maxes[1] = fmax(maxes[1], drift);
+    if (started_hidden && mode == 0) { level = 0.0; current = 0.0; count = 0; length = DRIFT_EPOCH; }
+    const int excursion = level > 0.0 && drift > fmax(DRIFT_BAND*level, DRIFT_FLOOR*(1.0 + size));
+    current = fmax(current, drift);
+    if (++count >= length) { level = current; current = 0.0; count = 0; length *= 2; }
+    stats[2] += excursion;
+    stats[5] += started_hidden && mode == 0;
+    resync = excursion && mode == 0;
+    it_last = (int)(stats[0] - it0); res_last = rn; phi_last = phin; drift_last = drift; resync_last = started_hidden && mode == 0;
     if ((n + 1) % every == 0 || n + 1 == n_steps) {
-      ts[rows] = t0 + (n + 1)*h;
+      ts[rows] = t1;
       memcpy(qs + rows*NQ, y1, sizeof(double)*NQ); memcpy(ps + rows*NQ, y1 + NQ, sizeof(double)*NQ);
       memcpy(ls + rows*NM, y1 + 2*NQ, sizeof(double)*NM);
+      row_it[rows] = it_last; row_res[rows] = res_last; row_phi[rows] = phi_last; row_drift[rows] = drift_last;
+      row_resync[rows] = resync_last;
       rows++; written = n + 1;
     }
   }
@@ -660,6 +684,8 @@ int run(int n_steps, int every, double t0, double h, int mode, int have_lam0, do
     ts[rows] = t0 + stats[3]*h;
     memcpy(qs + rows*NQ, yl, sizeof(double)*NQ); memcpy(ps + rows*NQ, yl + NQ, sizeof(double)*NQ);
     memcpy(ls + rows*NM, yl + 2*NQ, sizeof(double)*NM);
+    row_it[rows] = it_last; row_res[rows] = res_last; row_phi[rows] = phi_last; row_drift[rows] = drift_last;
+    row_resync[rows] = resync_last;
     rows++;
   }
   stats[4] = rows;
@@ -743,6 +769,7 @@ def _compiled(make_source, inputs: str, label: str) -> Path:
 
 
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
+_INT_P = ctypes.POINTER(ctypes.c_int32)
 
 
 class NativeIntegrator:
@@ -775,8 +802,9 @@ class NativeIntegrator:
         lib = ctypes.CDLL(str(self.library))
         self._run = lib.run
         self._run.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_int,
-                              _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, ctypes.c_int,
-                              ctypes.c_double, ctypes.c_int, ctypes.POINTER(ctypes.c_long)]
+                              _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, _INT_P, _DOUBLE_P, _DOUBLE_P, _DOUBLE_P,
+                              _INT_P, _DOUBLE_P, _DOUBLE_P, ctypes.c_int, ctypes.c_double, ctypes.c_int,
+                              ctypes.POINTER(ctypes.c_long), _DOUBLE_P]
         self._run.restype = ctypes.c_int
         self._tab = _tableau(self.stages)
         self._lib = lib
@@ -793,8 +821,36 @@ class NativeIntegrator:
             raise LobattoDAEInputError(f"{self.model.name}: {name} has non-finite entries: {arr}.")
         return arr
 
+    def _call(self, t0: float, h: float, n_steps: int, every: int, q0, p0, lam0, args) -> _Run:
+        """One run of the compiled program (arguments checked but the step count and stride)."""
+        model = self.model
+        n, m = model.n, model.m
+        k = np.array([float(v) for v in (model._check_args(args)[name] for name in model.parameters)], np.float64)
+        rows = -(-n_steps // every) + 1  # 0, every, 2 every, ..., n_steps (a failed run's last point fits)
+        ts = np.full(rows, np.nan)
+        qs, ps, ls = np.full((rows, n), np.nan), np.full((rows, n), np.nan), np.full((rows, m), np.nan)
+        qs[0], ps[0] = self._vector("q0", q0, n), self._vector("p0", p0, n)
+        if lam0 is not None:
+            ls[0] = self._vector("lam0", lam0, m)
+        its, resync = np.zeros(rows, np.int32), np.zeros(rows, np.int32)
+        res, phi, drift = np.full(rows, np.nan), np.full(rows, np.nan), np.full(rows, np.nan)
+        stats, maxes = (ctypes.c_long * 6)(), np.zeros(2)
+
+        def ptr(a):
+            return a.ctypes.data_as(_INT_P if a.dtype == np.int32 else _DOUBLE_P)
+
+        start = time.perf_counter()
+        code = self._run(n_steps, every, t0, h, self._MODES[self.lam_start], int(lam0 is not None), ptr(ts), ptr(qs),
+                         ptr(ps), ptr(ls), ptr(its), ptr(res), ptr(phi), ptr(drift), ptr(resync), ptr(k),
+                         ptr(self._tab), int(self.extrapolate), self.tol, self.max_iterations, stats, ptr(maxes))
+        elapsed = time.perf_counter() - start
+        if code < 0:
+            raise MemoryError("the native step could not allocate its Newton matrix.")
+        return _Run(ts, qs, ps, ls, Result(code), its, res, phi, drift, resync.astype(bool), tuple(int(x) for x in stats),
+                    float(maxes[0]), float(maxes[1]), elapsed)
+
     def integrate(self, t0, h, n_steps: int, q0, p0, lam0=None, args=None, *, save_every=1) -> NativeResult:
-        """``n_steps`` steps of size ``h`` from ``(t0, q0, p0)``.
+        """``n_steps`` steps of size ``h`` from ``(t0, q0, p0)``, as :func:`lobattodae.integrate`.
 
         Parameters
         ----------
@@ -803,7 +859,7 @@ class NativeIntegrator:
         n_steps : int
         q0, p0 : array_like, shape (n,)
             Consistent initial values (``φ(t0, q0, p0) = 0``; not checked, as in
-            :func:`lobattodae.integrate`).
+            :func:`lobattodae.integrate`; :meth:`solve` checks them).
         lam0 : array_like, shape (m,), optional
             The start multiplier; default the hidden constraint's ``λ(t0, q0, p0)``.
         args : dict
@@ -825,29 +881,122 @@ class NativeIntegrator:
             A count, a time, a step, ``save_every`` or an initial value that is not usable
             (named in the message).
         """
-        model = self.model
         n_steps = check_count("n_steps", n_steps)
-        every = n_steps if isinstance(save_every, str) and save_every == "final" else save_every
-        every = check_count("save_every", every, "a positive integer or 'final'")
+        every = _stride(save_every, n_steps)
         t0, h = float(t0), float(h)
         if not (math.isfinite(t0) and math.isfinite(h) and h != 0.0):
             raise LobattoDAEInputError(f"t0 and h must be finite and h nonzero; got t0={t0!r}, h={h!r}.")
-        n, m = model.n, model.m
-        k = np.array([float(v) for v in (model._check_args(args)[name] for name in model.parameters)], np.float64)
-        rows = -(-n_steps // every) + 1  # 0, every, 2 every, ..., n_steps (a failed run's last point fits)
-        ts = np.full(rows, np.nan)
-        qs, ps, ls = np.full((rows, n), np.nan), np.full((rows, n), np.nan), np.full((rows, m), np.nan)
-        qs[0], ps[0] = self._vector("q0", q0, n), self._vector("p0", p0, n)
-        if lam0 is not None:
-            ls[0] = self._vector("lam0", lam0, m)
-        stats = (ctypes.c_long * 5)()
+        r = self._call(t0, h, n_steps, every, q0, p0, lam0, args)
+        return NativeResult(r.q, r.p, r.lam, r.result, r.stats[0], r.stats[1], r.stats[5], r.t)
 
-        def ptr(a):
-            return a.ctypes.data_as(_DOUBLE_P)
+    def solve(self, t_span, q0, p0, *, n_steps=None, dt=None, save_every=None, lam0=None, args=None,
+              throw: bool = True) -> Solution:
+        """Constant steps over ``t_span``, as :func:`lobattodae.solve` takes them: a
+        :class:`~lobattodae.Solution` (its plots, saving, scipy's views and ``energy_error`` work
+        on it), its rows and ``stats`` made by the native run.
 
-        code = self._run(n_steps, every, t0, h, self._MODES[self.lam_start], int(lam0 is not None), ptr(ts), ptr(qs),
-                         ptr(ps), ptr(ls), ptr(k), ptr(self._tab), int(self.extrapolate), self.tol, self.max_iterations,
-                         stats)
-        if code < 0:
-            raise MemoryError("the native step could not allocate its Newton matrix.")
-        return NativeResult(qs, ps, ls, Result(code), int(stats[0]), int(stats[1]), int(stats[2]), ts)
+        Parameters
+        ----------
+        t_span : (float, float)
+        q0, p0 : array_like, shape (n,)
+            Consistent initial values, ``φ(t0, q0, p0) = 0`` to ``1e-10·(1 + ‖q0‖∞ + ‖p0‖∞)``
+            (and ψ(t0, q0) = 0 with holonomic constraints).
+        n_steps, dt : int or float
+            Constant steps: their number, or a maximal step size, as in :func:`lobattodae.solve`.
+        save_every : int or "final", optional
+            Keep every k-th step point (and the last), or the initial and the final one.
+        lam0 : array_like, shape (m,), optional
+            Default: the hidden constraint's multiplier at ``(t0, q0, p0)``.
+        args : dict
+            ``model.args(...)``.
+        throw : bool
+            Raise :class:`~lobattodae.NewtonFailure` when a step fails (default), or return the
+            computed prefix with ``success`` False.
+
+        Returns
+        -------
+        Solution
+            ``stats`` with the keys of :data:`lobattodae.STATS` that constant steps fill
+            (``compile_and_run_time``: the native run's wall time).
+
+        Raises
+        ------
+        LobattoDAEInputError
+            Bad input (named), or initial values off the constraints.
+        NewtonFailure
+            A step failed and ``throw`` is True.
+        """
+        from .._options import ConstantSteps, TimeSpan
+        from .._stepper import LobattoIIIAIIIB
+        from .._validate import CONSISTENCY_TOL
+
+        span = TimeSpan.of(t_span)
+        if n_steps is None and dt is None:
+            raise LobattoDAEInputError("the native step takes constant steps: give n_steps or dt (error control is "
+                                       "lobattodae.solve's, with rtol and atol).")
+        steps = ConstantSteps.over(span, n_steps, dt)
+        every = _stride(save_every, steps.n)
+        r = self._call(span.t0, steps.h, steps.n, every, q0, p0, lam0, args)
+        scale = 1.0 + float(np.max(np.abs(r.q[0]))) + float(np.max(np.abs(r.p[0])))
+        if not r.phi[0] <= CONSISTENCY_TOL * scale:
+            raise InconsistentInitialValuesError(
+                f"the initial values violate the constraints: ‖φ(t0, q0, p0)‖∞ = {r.phi[0]:.3e} > "
+                f"{CONSISTENCY_TOL:.1e}·(1 + ‖q0‖∞ + ‖p0‖∞). Make p0 consistent (model.complete_velocities, then "
+                "model.momenta).")
+        if self.model.n_holonomic:
+            psi = np.asarray(self.model.holonomic_residual(span.t0, r.q[0], args))
+            if not float(np.max(np.abs(psi))) <= CONSISTENCY_TOL * scale:
+                raise InconsistentInitialValuesError(
+                    f"the initial position violates the holonomic constraint: ‖ψ(t0, q0)‖∞ = "
+                    f"{float(np.max(np.abs(psi))):.3e}; fix q0 so that ψ(t0, q0) = 0.")
+        rows = int(r.stats[4])
+        failed = r.result != Result.SUCCESSFUL
+        taken = r.stats[3]
+        resync = r.resync[1:rows]
+        stats = {
+            "newton_iterations": r.iterations[1:rows], "residual_norm": r.residual_norm[1:rows],
+            "constraint_residual": r.phi[:rows], "multiplier_drift": r.drift[:rows], "lam_resync": resync,
+            "lam_resets": int(np.count_nonzero(resync)), "lam_excursions": r.stats[2],
+            "max_constraint_residual": r.max_phi, "max_multiplier_drift": r.max_drift, "n_jacobians": r.stats[1],
+            "n_newton": r.stats[0], "n_steps": taken, "n_rejected": 0, "h": steps.h, "n_clamped": None,
+            "n_roundoff_limited": None, "n_checked": None, "n_failed_solves": None, "n_unresolved": None,
+            "failed_step": taken if failed else None, "recoveries": 0, "compile_and_run_time": r.elapsed,
+        }
+        message = r.result.message
+        if failed:
+            t_fail = span.t0 + taken * steps.h
+            message = f"Step {taken} (t = {t_fail:.6g}, h = {steps.h:.3g}) failed: {r.result.message}"
+            if throw:
+                raise NewtonFailure(message, step=taken, t=t_fail, reason=r.result.name.lower())
+        method = LobattoIIIAIIIB(stages=self.stages, tol=self.tol, max_iterations=self.max_iterations,
+                                 lam_start=self.lam_start)
+        return Solution(r.t[:rows], r.q[:rows], r.p[:rows], r.lam[:rows], not failed, r.result, message, stats,
+                        self.model.problem, method, args)
+
+
+class _Run(NamedTuple):
+    """What one native run hands back (see :meth:`NativeIntegrator._call`)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    p: np.ndarray
+    lam: np.ndarray
+    result: Result
+    iterations: np.ndarray
+    residual_norm: np.ndarray
+    phi: np.ndarray
+    drift: np.ndarray
+    resync: np.ndarray
+    stats: tuple  # Newton iterations, matrices, excursions, steps taken, rows written, steps re-synchronised
+    max_phi: float
+    max_drift: float
+    elapsed: float
+
+
+def _stride(save_every, n_steps: int) -> int:
+    """The stride of the kept step points: ``save_every`` (a positive integer, default 1), or the
+    whole run for ``"final"``."""
+    if save_every is None:
+        return 1
+    every = n_steps if isinstance(save_every, str) and save_every == "final" else save_every
+    return check_count("save_every", every, "a positive integer or 'final'")
