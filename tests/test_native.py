@@ -164,6 +164,23 @@ def test_solve_checks_the_initial_values_and_reports_a_failure(disk):
     assert not sol.success and sol.stats["failed_step"] == 0 and sol.q.shape == (1, 5)
 
 
+def test_solve_warns_of_a_drifting_multiplier_as_lobattodae_solve_does():
+    """The sleigh under the paper's scheme (lam_start="previous"): λ leaves its band; both solves
+    warn with the same advice and count the excursions alike (980 and 981 of 2000 steps: the
+    drift they compare is λ's undamped error, which round-off feeds)."""
+    ex = examples.chaplygin_sleigh()
+    model = mechanics.systems.chaplygin_sleigh()
+    args = model.args(**ex.args._asdict())
+    with pytest.warns(RuntimeWarning, match="left its normal band.*lam_start='auto'"):
+        ours = model.native(4, lam_start="previous").solve((0.0, 100.0), ex.q0, ex.p0, n_steps=2000, args=args)
+    with pytest.warns(RuntimeWarning, match="left its normal band"):
+        theirs = L.solve(model.problem, L.LobattoIIIAIIIB(stages=4, lam_start="previous"), (0.0, 100.0), ex.q0, ex.p0,
+                         n_steps=2000, args=args)
+    assert abs(ours.stats["lam_excursions"] - theirs.stats["lam_excursions"]) <= 0.01 * theirs.stats["lam_excursions"]
+    assert theirs.stats["lam_excursions"] > 100
+    assert "Warning: the multiplier" in ours.message
+
+
 def test_holonomic_constraints_are_kept_by_the_library_s_projection():
     """The Cartesian pendulum (ψ = x² + y² − ℓ²): each step's end projected onto ψ = 0 and φ = 0
     as ``lobattodae._projection`` does, so ψ holds to round-off at every step point and the rows

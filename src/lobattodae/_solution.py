@@ -268,14 +268,7 @@ def assemble(problem, method, args, opt: RunOptions, q0, p0, lam0, phi0, run: Pr
         of = f" of {opt.n}" if opt.n is not None else ""
         message = f"Interrupted after {int(state.n_accepted)}{of} steps (t = {t_now:.6g}); the computed prefix is returned."
     if method.lam_start == "previous" and excursions:
-        k = _first_excursion(out.drift)
-        note = (
-            f"the multiplier λ_k left its normal band around the hidden constraint in {excursions} steps "
-            f"(‖λ_k − λ(q_k, p_k)‖∞ up to {float(state.max_drift):.2e}, first at t ≈ {out.t[min(k, len(out.t) - 1)] if len(out.t) else opt.t0:.6g}). "
-            "With lam_start='previous' (the paper's scheme) λ errors are carried with |R(∞)| = 1 and can grow, and with "
-            "them the errors in q and p. Use lam_start='auto' (re-synchronise when λ drifts) or 'consistent', or a "
-            "smaller step."
-        )
+        note = drift_note(excursions, float(state.max_drift), out.t, out.drift, opt.t0)
         message = f"{message} Warning: {note}"
         warnings.warn(note, RuntimeWarning, stacklevel=4)  # the caller of solve
     if roundoff:
@@ -314,6 +307,20 @@ def _event_lists(opt: RunOptions, run: Progress, n: int, m: int):
         for lst, part in zip(out, split_event_rows(mine, n)):
             lst.append(part)
     return out
+
+
+def drift_note(excursions: int, max_drift: float, t: np.ndarray, drift: np.ndarray, t0: float) -> str:
+    """The warning of a run with ``lam_start="previous"`` whose multiplier left its band
+    (``t``, ``drift``: the output rows after the initial one)."""
+    k = _first_excursion(drift)
+    first = t[min(k, len(t) - 1)] if len(t) else t0
+    return (
+        f"the multiplier λ_k left its normal band around the hidden constraint in {excursions} steps "
+        f"(‖λ_k − λ(q_k, p_k)‖∞ up to {max_drift:.2e}, first at t ≈ {first:.6g}). "
+        "With lam_start='previous' (the paper's scheme) λ errors are carried with |R(∞)| = 1 and can grow, and with "
+        "them the errors in q and p. Use lam_start='auto' (re-synchronise when λ drifts) or 'consistent', or a "
+        "smaller step."
+    )
 
 
 def _first_excursion(drift: np.ndarray) -> int:

@@ -55,6 +55,7 @@ import shutil
 import subprocess
 import tempfile
 import time
+import warnings
 from pathlib import Path
 from typing import NamedTuple
 
@@ -67,7 +68,7 @@ from .._cache import cache_switched_off, default_cache_dir
 from .._errors import InconsistentInitialValuesError, LobattoDAEInputError, NewtonFailure, ShapeError
 from .._options import check_count
 from .._results import Result
-from .._solution import Solution
+from .._solution import Solution, drift_note
 from .._tableau import lobatto_pair
 from . import _codegen
 from ._codegen import common_subexpressions, plain_symbols
@@ -968,6 +969,10 @@ class NativeIntegrator:
             message = f"Step {taken} (t = {t_fail:.6g}, h = {steps.h:.3g}) failed: {r.result.message}"
             if throw:
                 raise NewtonFailure(message, step=taken, t=t_fail, reason=r.result.name.lower())
+        if self.lam_start == "previous" and r.stats[2]:  # as lobattodae.solve warns
+            note = drift_note(r.stats[2], r.max_drift, r.t[1:rows], r.drift[1:rows], span.t0)
+            message = f"{message} Warning: {note}"
+            warnings.warn(note, RuntimeWarning, stacklevel=2)
         method = LobattoIIIAIIIB(stages=self.stages, tol=self.tol, max_iterations=self.max_iterations,
                                  lam_start=self.lam_start)
         return Solution(r.t[:rows], r.q[:rows], r.p[:rows], r.lam[:rows], not failed, r.result, message, stats,
