@@ -764,7 +764,10 @@ def _compiled(make_source, inputs: str, label: str) -> Path:
         out = Path(work) / "step.so"
         done = subprocess.run([cc, *CFLAGS, "-o", str(out), str(src), "-lm"], capture_output=True, text=True)
         if done.returncode != 0:
-            raise RuntimeError(f"the C compiler ({cc}) failed on the generated native step:\n{done.stderr[-4000:]}")
+            raise RuntimeError(
+                f"the C compiler ({cc}) failed on the generated native step (an expression of the model that C "
+                "cannot take?); lobattodae.solve and lobattodae.integrate take this model without it. The "
+                f"compiler said:\n{done.stderr[-4000:]}")
         os.replace(out, target)
     return target
 
