@@ -131,17 +131,17 @@ int replay_doubling(int n_steps, double t0, const double *hs, double *q, double 
                     const double *tab, int extrapolate, double tol, int maxit, long *stats) {
   Tab tb; memcpy(&tb, tab, sizeof tb);
   Solver *sv = calloc(2, sizeof(Solver));   /* [0]: the half steps, [1]: the whole step */
-  double comp[2*NQ] = {0.0}, cw[2*NQ], lam1[NM], qh[NQ], ph[NQ], lh[NM], qw[NQ], pw[NQ], lw[NM], l1[NM], v[NQ], w[NQ];
+  double comp[2*NQ] = {0.0}, cw[2*NQ], lam1[NM], qh[NQ], ph[NQ], lh[NM], qw[NQ], pw[NQ], lw[NM], l1[NM], v[NQ], w[NQ], rn = 0.0;
   double t = t0;
   int result = 0;
   for (int n = 0; n < n_steps && !result; n++) {
     const double h = hs[n];
     model_lambda(t, q, p, k, lam1);
     memcpy(cw, comp, sizeof cw);
-    result = step(&sv[1], &tb, extrapolate, tol, maxit, t, h, q, p, lam1, cw, k, qw, pw, lw, stats);
-    if (!result) result = step(&sv[0], &tb, extrapolate, tol, maxit, t, 0.5*h, q, p, lam1, comp, k, qh, ph, lh, stats);
+    result = step(&sv[1], &tb, extrapolate, tol, maxit, t, h, q, p, lam1, cw, k, qw, pw, lw, &rn, stats);
+    if (!result) result = step(&sv[0], &tb, extrapolate, tol, maxit, t, 0.5*h, q, p, lam1, comp, k, qh, ph, lh, &rn, stats);
     if (!result) { model_lambda(t + 0.5*h, qh, ph, k, lam1);
-                   result = step(&sv[0], &tb, extrapolate, tol, maxit, t + 0.5*h, 0.5*h, qh, ph, lam1, comp, k, q, p, l1, stats); }
+                   result = step(&sv[0], &tb, extrapolate, tol, maxit, t + 0.5*h, 0.5*h, qh, ph, lam1, comp, k, q, p, l1, &rn, stats); }
     /* the estimate's own evaluations: the vector field on the manifold at both results, and at the
        kept one with the whole step's λ */
     model_lambda(t + h, qw, pw, k, lw); model_fg(t + h, qw, pw, lw, k, v, w);

@@ -181,6 +181,25 @@ def test_solve_warns_of_a_drifting_multiplier_as_lobattodae_solve_does():
     assert "Warning: the multiplier" in ours.message
 
 
+def test_sympy_s_rolling_disc_meets_its_reference():
+    """A model nobody here wrote: the rolling disc of SymPy's documentation (``KanesMethod``,
+    converted by ``from_kanes_method``; ``benchmarks/testset``), natively with the test set's
+    constant steps (s = 5, 400 steps to T = 10), against its reference from scipy's DOP853 at
+    1e-13: within the test set's bound for the JAX path, 1.2e-8."""
+    import pathlib
+    import sys
+
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
+    from benchmarks.testset import PROBLEMS, error
+    from benchmarks.testset import rolling_disc
+
+    entry, setup = PROBLEMS["rolling-disc"], rolling_disc.build()
+    sol = rolling_disc.model().native(entry.test.stages).solve(setup.t_span, setup.q0, setup.p0, args=setup.args,
+                                                               n_steps=entry.test.n_steps)
+    assert sol.success and sol.stats["max_constraint_residual"] < 1e-12
+    assert error(entry, sol.t, sol.q, sol.p) <= entry.test.bound
+
+
 def test_holonomic_constraints_are_kept_by_the_library_s_projection():
     """The Cartesian pendulum (ψ = x² + y² − ℓ²): each step's end projected onto ψ = 0 and φ = 0
     as ``lobattodae._projection`` does, so ψ holds to round-off at every step point and the rows

@@ -439,7 +439,7 @@ class LagrangianModel:
 
         The library's scheme and Newton rules, with the model's functions generated from its
         SymPy expressions; compiled with the system's C compiler on first use and kept in the user
-        cache directory (a new process loads it). 2–4 × less time per step than
+        cache directory (a new process loads it). 2.0–6.7 × less time per step than
         :func:`lobattodae.integrate` on a CPU, with results equal to round-off
         (``benchmarks/RESULTS.md``, 2026-11-29 11:15); forward only: the JAX path stays the one
         for ``jax.grad``, ``vmap``, GPUs, error control, dense output and events. Holonomic

@@ -153,19 +153,16 @@ def _function(name, signature, pre, outputs, symbols) -> str:
     shared = common_subexpressions(pre, [e for _, exprs in outputs for e in exprs], v if pre else (),
                                    lambda sym, expr: f"  const double {sym.name} = {_c(expr)};")
     pre_red, out_red, early, after = shared.pre, shared.outputs, shared.early, shared.late
+    used = set().union(*(e.free_symbols for _, e in shared.replacements), *(e.free_symbols for e in pre_red + out_red))
     lines = [f"static void {name}({signature}) {{", "  (void)t;"]
-    lines += [f"  const double {x.name} = q[{i}]; (void){x.name};" for i, x in enumerate(q)]
-    if "*p," in signature:
-        lines += [f"  const double {x.name} = p[{i}]; (void){x.name};" for i, x in enumerate(p)]
-    if "lam" in signature:
-        lines += [f"  const double {x.name} = lam[{i}]; (void){x.name};" for i, x in enumerate(lam)]
-    lines += [f"  const double {x.name} = k[{i}]; (void){x.name};" for i, x in enumerate(params)]
+    for array, entries in (("q", q), ("p", p), ("lam", lam), ("k", params)):  # the inputs it reads
+        lines += [f"  const double {x.name} = {array}[{i}];" for i, x in enumerate(entries) if x in used]
     lines += early
     if pre:
         lines.append(f"  double mm[{n * n}] = {{{', '.join(_c(e) for e in pre_red[: n * n])}}};")
         lines.append(f"  double vv[{n}] = {{{', '.join(_c(e) for e in pre_red[n * n:])}}};")
         lines.append(f"  spd_solve({n}, mm, vv);")
-        lines += [f"  const double {x.name} = vv[{i}]; (void){x.name};" for i, x in enumerate(v)]
+        lines += [f"  const double {x.name} = vv[{i}];" for i, x in enumerate(v) if x in used]
     lines += after
     pos = 0
     for array, exprs in outputs:
@@ -787,6 +784,8 @@ class NativeIntegrator:
     Attributes
     ----------
     model : LagrangianModel
+    method : LobattoIIIAIIIB
+        The method whose steps it takes (``Solution.method`` of :meth:`solve`).
     stages : int
     lam_start, tol, max_iterations :
         As in :class:`~lobattodae.LobattoIIIAIIIB`.
@@ -797,7 +796,8 @@ class NativeIntegrator:
     _MODES = {"auto": 0, "previous": 1, "consistent": 2}
 
     def __init__(self, model, method):
-        self.model, self.stages, self.lam_start = model, method.stages, method.lam_start
+        self.model, self.method = model, method
+        self.stages, self.lam_start = method.stages, method.lam_start
         self.tol, self.max_iterations = method.tol, method.max_iterations
         self.extrapolate = method._use_extrapolation
         # the model is all in its generated JAX source (M, a, V, μ, ν, F, ψ and the parameters' order)
@@ -931,7 +931,6 @@ class NativeIntegrator:
             A step failed and ``throw`` is True.
         """
         from .._options import ConstantSteps, TimeSpan
-        from .._stepper import LobattoIIIAIIIB
         from .._validate import CONSISTENCY_TOL
 
         span = TimeSpan.of(t_span)
@@ -976,10 +975,8 @@ class NativeIntegrator:
             note = drift_note(r.stats[2], r.max_drift, r.t[1:rows], r.drift[1:rows], span.t0)
             message = f"{message} Warning: {note}"
             warnings.warn(note, RuntimeWarning, stacklevel=2)
-        method = LobattoIIIAIIIB(stages=self.stages, tol=self.tol, max_iterations=self.max_iterations,
-                                 lam_start=self.lam_start)
         return Solution(r.t[:rows], r.q[:rows], r.p[:rows], r.lam[:rows], not failed, r.result, message, stats,
-                        self.model.problem, method, args)
+                        self.model.problem, self.method, args)
 
 
 class _Run(NamedTuple):
