@@ -90,6 +90,7 @@ import numpy as np
 
 from ._controllers import PIController
 from ._dense import joined
+from ._errors import LobattoDAEInputError
 from ._newton import JacobianCache
 from ._problem import vector_field
 from ._results import Result
@@ -283,7 +284,7 @@ class StepDoubling:
         return q1, p1, lam1, info, new_state
 
 
-def for_error_control(method: LobattoIIIAIIIB, controller) -> Any:
+def for_error_control(method, controller, problem=None, *, native: bool = False) -> Any:
     """The method as ``controller`` runs it: the one place where it is adapted.
 
     Error-controlled steps (:class:`~lobattodae.PIController`) start every step from the
@@ -292,9 +293,29 @@ def for_error_control(method: LobattoIIIAIIIB, controller) -> Any:
     the error estimate rather than the solution's error. With the default estimate the steps are
     :class:`StepDoubling`; ``PIController(estimate="embedded")`` keeps single steps. Other
     controllers run the method as it is.
+
+    ``method`` may be a model's :class:`~lobattodae.mechanics.NativeIntegrator` where ``native``
+    allows it (:func:`lobattodae.solve`): its attempts of step doubling are native calls
+    (:mod:`lobattodae.mechanics._native_doubling`) for ``problem``, the model's; other
+    controllers are refused with the way out.
     """
-    if not isinstance(controller, PIController):
-        return method
+    integrator = None
+    if not isinstance(method, LobattoIIIAIIIB) and hasattr(method, "doubling"):  # a NativeIntegrator
+        if not native:
+            raise LobattoDAEInputError(
+                f"{method!r} takes error-controlled steps in lobattodae.solve only (a forward run on the CPU: no "
+                "jax.grad, jit or vmap through it); here use its JAX method, native.method, instead.")
+        integrator, method = method, method.method
+    if not isinstance(controller, PIController) or controller.estimate != "doubling":
+        if integrator is not None:
+            raise LobattoDAEInputError(
+                f"a NativeIntegrator in lobattodae.solve takes error-controlled steps (rtol, atol; PIController with "
+                f"its default estimate), not {controller!r}: for constant steps use native.solve(t_span, q0, p0, "
+                "n_steps=...), or pass native.method to lobattodae.solve.")
+        if not isinstance(controller, PIController):
+            return method
     if method.lam_start == "auto":
         method = dataclasses.replace(method, lam_start="consistent")
-    return StepDoubling(method) if controller.estimate == "doubling" else method
+    if controller.estimate != "doubling":
+        return method
+    return StepDoubling(method) if integrator is None else integrator.doubling(method, problem)

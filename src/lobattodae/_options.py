@@ -517,9 +517,10 @@ class RunOptions:
     def check(cls, method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output,
               events, save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume, t_eval_rows=None,
               max_steps=None):
-        if not isinstance(method, LobattoIIIAIIIB):
+        if not isinstance(method, LobattoIIIAIIIB) and not hasattr(method, "doubling"):  # or a NativeIntegrator
             raise TypeError(
-                f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3); got {method!r}."
+                f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3) (or, in solve, a model's "
+                f"NativeIntegrator, model.native(stages)); got {method!r}."
             )
         check_tolerance_attainable(method)
         span = TimeSpan.of(t_span)

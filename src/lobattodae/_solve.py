@@ -85,7 +85,12 @@ def solve(
         recompile, nor does ``save_every``; the first run with ``t_eval`` or ``dense_output``
         compiles the loop that records them, once for every later ``t_eval`` and
         ``dense_output`` (``events`` and ``t_eval_rows="project"`` compile loops of their own).
-    method : LobattoIIIAIIIB
+    method : LobattoIIIAIIIB or NativeIntegrator
+        The method; or, for a model of :mod:`lobattodae.mechanics` and error-controlled steps,
+        its native program ``model.native(stages)`` (``problem`` then ``model.problem``): each
+        step attempt is one call into compiled C, everything else (controller, events,
+        ``t_eval``, dense output, checkpoints) as with the method, the same steps to round-off
+        (:meth:`~lobattodae.mechanics.NativeIntegrator.solve`).
     t_span : (float, float)
         ``(t0, t1)``; ``t1 < t0`` integrates backwards.
     q0, p0 : array_like, shape (n,)
@@ -202,7 +207,7 @@ def solve(
         :class:`ProblemFunctionError`, :class:`InconsistentInitialValuesError`,
         :class:`SingularConstraintError`, :class:`CheckpointError`.
     TypeError
-        ``method`` is not a :class:`LobattoIIIAIIIB`.
+        ``method`` is not a :class:`LobattoIIIAIIIB` (or a ``NativeIntegrator``).
     CheckpointWriteError
         A checkpoint could not be saved during the run and ``throw`` is True; it carries the
         computed prefix as ``.solution``.
@@ -239,9 +244,9 @@ def _refuse_tracers(**inputs) -> None:
 def _run(problem, method, opt: RunOptions, q0, p0, lam0, args, throw, project_initial, progress, interrupted):
     """Validation, the loop state, the compiled chunks (progress, checkpoints, recovery), the
     Solution; ``interrupted()`` says whether Ctrl-C asked to stop."""
+    method = for_error_control(method, opt.controller, problem, native=True)
     q0, p0, lam0, phi0, lam_hidden = validate_and_residual(problem, opt.t0, q0, p0, lam0, args,
                                                            project=project_initial)
-    method = for_error_control(method, opt.controller)
     _check_events(opt.output.events, opt.t0, q0, p0, args)
     report = progress_reporter(progress, opt)
     controller, output = opt.controller, opt.output

@@ -59,6 +59,8 @@ import warnings
 from pathlib import Path
 from typing import NamedTuple
 
+import jax
+import jaxlib
 import numpy as np
 import sympy as sp
 from sympy.printing.c import C99CodePrinter
@@ -70,8 +72,9 @@ from .._options import check_count
 from .._results import Result
 from .._solution import Solution, drift_note
 from .._tableau import lobatto_pair
-from . import _codegen
+from . import _codegen, _native_doubling
 from ._codegen import common_subexpressions, plain_symbols
+from ._native_doubling import ATTEMPT_C, NativeDoubling
 
 __all__ = ["NativeIntegrator", "NativeResult", "c_compiler", "model_source"]
 
@@ -490,12 +493,18 @@ static void newton_matrix(const Tab *tb, double t0, double h, const double *q0, 
   factor(lu, piv);
 }
 
+/* The predictor's memory: the last step's stage slopes, what the plain extrapolation missed on
+   them, and that step's size (an error-controlled run selects it back after a rejected attempt). */
+typedef struct {
+  double Vh[S][NQ], Wh[S][NQ], Lh[S][NM], dV[S][NQ], dW[S][NQ], dL[S][NM], h_prev;
+  int have_slopes, have_corr;
+} History;
+
 /* What a run keeps from step to step: Newton's LU factors (and the h they were made with), the
    round-off level where the last solve with a fresh matrix stopped, the predictor's history. */
 typedef struct {
   double lu[NU*NU]; int piv[NU]; int have_lu; double h_lu, floor_;
-  double Vh[S][NQ], Wh[S][NQ], Lh[S][NM], dV[S][NQ], dW[S][NQ], dL[S][NM], h_prev;
-  int have_slopes, have_corr;
+  History hs;
   Blocks blocks;
 } Solver;
 
@@ -516,26 +525,26 @@ static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxi
                 double *q1, double *p1, double *lam_out, double *res_norm, long *stats) {
   double x[NU], dx[NU], Vp[S][NQ], Wp[S][NQ], Lp[S][NM];
   if (fabs(h - sv->h_lu) > H_CHANGE_REFRESH*fabs(h)) sv->have_lu = 0;
-  if (extrapolate && sv->have_slopes) {
+  if (extrapolate && sv->hs.have_slopes) {
     /* Newton's start: the previous step's stage polynomials at the new stage times, plus what they
        missed one step before; Q = q_0 + h A V, P = p_0 + h Â W, Z = h Λ */
-    const double on = sv->have_corr ? 1.0 : 0.0;
+    const double on = sv->hs.have_corr ? 1.0 : 0.0;
     for (int i = 0; i < S; i++) {
-      double l[S]; basis(tb, 1.0 + tb->C[i]*h/sv->h_prev, l);
+      double l[S]; basis(tb, 1.0 + tb->C[i]*h/sv->hs.h_prev, l);
       for (int c = 0; c < NQ; c++) {
         double a = 0.0, b = 0.0;
-        for (int j = 0; j < S; j++) { a += l[j]*sv->Vh[j][c]; b += l[j]*sv->Wh[j][c]; }
+        for (int j = 0; j < S; j++) { a += l[j]*sv->hs.Vh[j][c]; b += l[j]*sv->hs.Wh[j][c]; }
         Vp[i][c] = a; Wp[i][c] = b;
       }
-      for (int c = 0; c < NM; c++) { double a = 0.0; for (int j = 0; j < S; j++) a += l[j]*sv->Lh[j][c]; Lp[i][c] = a; }
+      for (int c = 0; c < NM; c++) { double a = 0.0; for (int j = 0; j < S; j++) a += l[j]*sv->hs.Lh[j][c]; Lp[i][c] = a; }
     }
     for (int i = 1; i < S; i++) for (int c = 0; c < NQ; c++) {
-      double a = 0.0; for (int j = 0; j < S; j++) a += tb->A[i][j]*(Vp[j][c] + on*sv->dV[j][c]);
+      double a = 0.0; for (int j = 0; j < S; j++) a += tb->A[i][j]*(Vp[j][c] + on*sv->hs.dV[j][c]);
       x[OQ + (i - 1)*NQ + c] = q[c] + h*a; }
     for (int i = 0; i < S; i++) for (int c = 0; c < NQ; c++) {
-      double a = 0.0; for (int j = 0; j < S; j++) a += tb->AH[i][j]*(Wp[j][c] + on*sv->dW[j][c]);
+      double a = 0.0; for (int j = 0; j < S; j++) a += tb->AH[i][j]*(Wp[j][c] + on*sv->hs.dW[j][c]);
       x[OP + i*NQ + c] = p[c] + h*a; }
-    for (int i = 1; i < S; i++) for (int c = 0; c < NM; c++) x[OZ + (i - 1)*NM + c] = h*(Lp[i][c] + on*sv->dL[i][c]);
+    for (int i = 1; i < S; i++) for (int c = 0; c < NM; c++) x[OZ + (i - 1)*NM + c] = h*(Lp[i][c] + on*sv->hs.dL[i][c]);
   } else {
     for (int i = 1; i < S; i++) memcpy(x + OQ + (i - 1)*NQ, q, sizeof(double)*NQ);
     for (int i = 0; i < S; i++) memcpy(x + OP + i*NQ, p, sizeof(double)*NQ);
@@ -600,15 +609,15 @@ static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxi
 #if NH > 0
   project_end(t + h, q1, p1, k);   /* ψ = 0 and φ = 0 at the step point, by projection */
 #endif
-  if (extrapolate && sv->have_slopes) {
+  if (extrapolate && sv->hs.have_slopes) {
     for (int i = 0; i < S; i++) {
-      for (int c = 0; c < NQ; c++) { sv->dV[i][c] = V[i][c] - Vp[i][c]; sv->dW[i][c] = W[i][c] - Wp[i][c]; }
-      for (int c = 0; c < NM; c++) sv->dL[i][c] = L[i][c] - Lp[i][c];
+      for (int c = 0; c < NQ; c++) { sv->hs.dV[i][c] = V[i][c] - Vp[i][c]; sv->hs.dW[i][c] = W[i][c] - Wp[i][c]; }
+      for (int c = 0; c < NM; c++) sv->hs.dL[i][c] = L[i][c] - Lp[i][c];
     }
-    sv->have_corr = 1;
+    sv->hs.have_corr = 1;
   }
-  memcpy(sv->Vh, V, sizeof V); memcpy(sv->Wh, W, sizeof W); memcpy(sv->Lh, L, sizeof L);
-  sv->h_prev = h; sv->have_slopes = 1;
+  memcpy(sv->hs.Vh, V, sizeof V); memcpy(sv->hs.Wh, W, sizeof W); memcpy(sv->hs.Lh, L, sizeof L);
+  sv->hs.h_prev = h; sv->hs.have_slopes = 1;
   return 0;
 }
 
@@ -699,9 +708,10 @@ def _tableau(s: int) -> np.ndarray:
 
 
 def program_source(model, stages: int) -> str:
-    """The whole C program of (model, s): the policies, the model's functions, the step and the run."""
+    """The whole C program of (model, s): the policies, the model's functions, the step, the run
+    and the error-controlled attempt (:mod:`._native_doubling`)."""
     return ("#include <math.h>\n#include <string.h>\n" + f"#define S {int(stages)}\n" + _constants()
-            + model_source(model) + _STEP_C)
+            + model_source(model) + _STEP_C + ATTEMPT_C)
 
 
 # ------------------------------------------------------------------------ compile and load
@@ -736,7 +746,8 @@ def _library_dir() -> Path:
 
 
 #: What the generated C depends on besides the model and s: this generator's own code.
-_GENERATOR = hashlib.sha256(b"".join(Path(f).read_bytes() for f in (__file__, _codegen.__file__))).hexdigest()
+_GENERATOR = hashlib.sha256(b"".join(Path(f).read_bytes() for f in (__file__, _codegen.__file__,
+                                                                     _native_doubling.__file__))).hexdigest()
 
 
 def _compiled(make_source, inputs: str, label: str) -> Path:
@@ -749,7 +760,8 @@ def _compiled(make_source, inputs: str, label: str) -> Path:
             "the native step needs a C compiler: none of $CC, cc, gcc, clang was found. Install one (e.g. "
             "gcc) or set CC; lobattodae.integrate and lobattodae.solve need none."
         )
-    key = hashlib.sha256("\0".join([inputs, _GENERATOR, cc, *CFLAGS]).encode()).hexdigest()[:24]
+    flags = [*CFLAGS, "-I", jax.ffi.include_dir()]  # XLA's FFI header, of the installed jaxlib
+    key = hashlib.sha256("\0".join([inputs, _GENERATOR, cc, *flags, jaxlib.__version__]).encode()).hexdigest()[:24]
     directory = _library_dir()
     target = directory / f"{re.sub(r'[^A-Za-z0-9_-]+', '_', label).strip('_')}-{key}.so"
     if target.exists():
@@ -759,7 +771,7 @@ def _compiled(make_source, inputs: str, label: str) -> Path:
         src = Path(work) / "step.c"
         src.write_text(source)
         out = Path(work) / "step.so"
-        done = subprocess.run([cc, *CFLAGS, "-o", str(out), str(src), "-lm"], capture_output=True, text=True)
+        done = subprocess.run([cc, *flags, "-o", str(out), str(src), "-lm"], capture_output=True, text=True)
         if done.returncode != 0:
             raise RuntimeError(
                 f"the C compiler ({cc}) failed on the generated native step (an expression of the model that C "
@@ -770,6 +782,8 @@ def _compiled(make_source, inputs: str, label: str) -> Path:
 
 
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
+#: The FFI handlers registered with XLA in this process (by name), and their loaded libraries.
+_TARGETS: dict[str, ctypes.CDLL] = {}
 _INT_P = ctypes.POINTER(ctypes.c_int32)
 
 
@@ -812,6 +826,25 @@ class NativeIntegrator:
         self._run.restype = ctypes.c_int
         self._tab = _tableau(self.stages)
         self._lib = lib
+
+    def doubling(self, method, problem=None) -> NativeDoubling:
+        """The stepper of :func:`lobattodae.solve`'s error-controlled runs for ``method`` (this
+        integrator's method as :func:`~lobattodae._doubling.for_error_control` adapts it): each
+        attempt of step doubling one call into this program (:mod:`._native_doubling`)."""
+        if problem is not None and problem is not self.model.problem:
+            raise LobattoDAEInputError(
+                f"this NativeIntegrator steps the equations of the model {self.model.name!r}: pass its problem, "
+                f"lobattodae.solve(model.problem, model.native(...), ...), or use native.solve(...).")
+        name = f"lobattodae_attempt_{self.library.stem.rsplit('-', 1)[-1]}"
+        if name not in _TARGETS:
+            jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(self._lib.lobattodae_attempt), platform="cpu")
+            _TARGETS[name] = self._lib  # registered once per process; the library stays loaded
+        sizes = []
+        for fn in (self._lib.attempt_newton_doubles, self._lib.attempt_history_doubles):
+            fn.restype = ctypes.c_long
+            sizes.append(int(fn()))
+        return NativeDoubling(method, target=name, parameters=tuple(self.model.parameters), sizes=tuple(sizes),
+                              tableau=tuple(float(x) for x in self._tab))
 
     def __repr__(self) -> str:
         return (f"NativeIntegrator({self.model.name!r}, stages={self.stages}, lam_start={self.lam_start!r}, "
@@ -893,11 +926,19 @@ class NativeIntegrator:
         r = self._call(t0, h, n_steps, every, q0, p0, lam0, args)
         return NativeResult(r.q, r.p, r.lam, r.result, r.stats[0], r.stats[1], r.stats[5], r.t)
 
-    def solve(self, t_span, q0, p0, *, n_steps=None, dt=None, save_every=None, lam0=None, args=None,
-              throw: bool = True) -> Solution:
-        """Constant steps over ``t_span``, as :func:`lobattodae.solve` takes them: a
+    def solve(self, t_span, q0, p0, *, n_steps=None, dt=None, rtol=None, atol=None, save_every=None, lam0=None,
+              args=None, throw: bool = True, **options) -> Solution:
+        """Integrate over ``t_span`` natively, as :func:`lobattodae.solve` does: a
         :class:`~lobattodae.Solution` (its plots, saving, scipy's views and ``energy_error`` work
-        on it), its rows and ``stats`` made by the native run.
+        on it).
+
+        With ``n_steps`` or ``dt``, constant steps: the whole run is one call into the compiled
+        program (rows and ``stats`` made there; ``save_every`` is the only output option). Else
+        error-controlled steps (``rtol``, ``atol``): ``lobattodae.solve(model.problem, self, ...)``,
+        the library's loop whose every attempt of step doubling is one native call
+        (:mod:`lobattodae.mechanics._native_doubling`), with all of :func:`lobattodae.solve`'s
+        options (``t_eval``, ``events``, ``dense_output``, ``max_step``, checkpoints, ...), the
+        same steps as the JAX path to round-off.
 
         Parameters
         ----------
@@ -907,6 +948,8 @@ class NativeIntegrator:
             (and ψ(t0, q0) = 0 with holonomic constraints).
         n_steps, dt : int or float
             Constant steps: their number, or a maximal step size, as in :func:`lobattodae.solve`.
+        rtol, atol : float, optional
+            Error-controlled steps (the default, with :func:`lobattodae.solve`'s tolerances).
         save_every : int or "final", optional
             Keep every k-th step point (and the last), or the initial and the final one.
         lam0 : array_like, shape (m,), optional
@@ -916,12 +959,14 @@ class NativeIntegrator:
         throw : bool
             Raise :class:`~lobattodae.NewtonFailure` when a step fails (default), or return the
             computed prefix with ``success`` False.
+        **options
+            Error-controlled steps: the other keywords of :func:`lobattodae.solve`.
 
         Returns
         -------
         Solution
-            ``stats`` with the keys of :data:`lobattodae.STATS` that constant steps fill
-            (``compile_and_run_time``: the native run's wall time).
+            ``stats`` with the keys of :data:`lobattodae.STATS` (constant steps:
+            ``compile_and_run_time`` is the native run's wall time).
 
         Raises
         ------
@@ -933,10 +978,18 @@ class NativeIntegrator:
         from .._options import ConstantSteps, TimeSpan
         from .._validate import CONSISTENCY_TOL
 
-        span = TimeSpan.of(t_span)
         if n_steps is None and dt is None:
-            raise LobattoDAEInputError("the native step takes constant steps: give n_steps or dt (error control is "
-                                       "lobattodae.solve's, with rtol and atol).")
+            from .._solve import solve
+
+            return solve(self.model.problem, self, t_span, q0, p0, rtol=rtol, atol=atol, save_every=save_every,
+                         lam0=lam0, args=args, throw=throw, **options)
+        if rtol is not None or atol is not None or options:
+            given = sorted([*(["rtol"] if rtol is not None else []), *(["atol"] if atol is not None else []), *options])
+            raise LobattoDAEInputError(
+                f"native constant steps (n_steps, dt) take save_every, lam0, args and throw, not {', '.join(given)}: "
+                "drop n_steps/dt for error-controlled steps with every option of lobattodae.solve, or use "
+                "lobattodae.solve(model.problem, native.method, n_steps=..., ...) on the JAX path.")
+        span = TimeSpan.of(t_span)
         steps = ConstantSteps.over(span, n_steps, dt)
         every = _stride(save_every, steps.n)
         r = self._call(span.t0, steps.h, steps.n, every, q0, p0, lam0, args)
