@@ -32,6 +32,10 @@ not a floor) or drops below 2e-13; ``lib.sweeps.Sweep``):
   (``mechanics.systems.chaplygin_sleigh()``, ``falling_disk()``; the same parameters and initial
   values) by its native step (``model.native(s).integrate``, generated C, constant steps, the
   N of the constant sweep); the best s is plotted.
+* **lobattodae native adaptive**, s = 4, 5 and 6: the same twin with error control natively,
+  ``lobattodae.solve(model.problem, model.native(s), rtol=tol, atol=tol)`` (each attempt of step
+  doubling one native call inside ``solve``'s loop), the tolerances of the adaptive sweep; the
+  best s is plotted.
 * **lobattodae reversible control**, s = 5, falling disk only (it has the reversing symmetry
   ``(q, p) -> (q, -p)``): ``ReversibleStepSize()`` (density ‖(f, g)‖, Hairer & Söderlind)
   with the symmetric scheme, ``first_step`` = 0.5·2^(-k/2) (it fixes ε = h₀ σ(y₀)).
@@ -112,12 +116,12 @@ def config(quick: bool) -> dict:
         return {"T": 100.0, "repeats": 1, "stages": [3, 5], "const_stages": [5],
                 "lob_tols": [1e-2, 1e-4, 1e-6, 1e-8, 1e-10], "const_N": [64, 256, 1024],
                 "dop_tols": [1e-3, 1e-5, 1e-7, 1e-9, 1e-11], "dfx_tols": [1e-3, 1e-5, 1e-7, 1e-9, 1e-11],
-                "pids": PID_SETS[:1], "ida_tols": [1e-3, 1e-5, 1e-7], "ref_h": (0.1, 0.05),
+                "pids": PID_SETS[:1], "ida_tols": [1e-3, 1e-5, 1e-7], "ref_h": (0.1, 0.05), "native_stages": [5],
                 "rev_stages": [5], "rev_h0": [0.4, 0.2, 0.1]}
     return {"T": 1000.0, "repeats": 3, "stages": list(STAGES), "const_stages": [4, 5, 6],
             "lob_tols": half_decades(1e-2, 1e-13), "const_N": [int(round(250 * 2 ** (k / 2))) for k in range(0, 15)],
             "dop_tols": half_decades(1e-3, 1e-13) + [2.3e-14], "dfx_tols": half_decades(1e-3, 1e-15),
-            "pids": PID_SETS, "ida_tols": half_decades(1e-3, 1e-12), "ref_h": (0.1, 0.05),
+            "pids": PID_SETS, "ida_tols": half_decades(1e-3, 1e-12), "ref_h": (0.1, 0.05), "native_stages": [4, 5, 6],
             "rev_stages": [5], "rev_h0": [round(0.5 * 2 ** (-k / 2), 4) for k in range(0, 9)]}
 
 
@@ -150,6 +154,26 @@ def lobattodae_sweep(label, ex, T, q_ref, cfg, budget, s, settings, options, war
         return solution_point(sol, lambda sol: np.max(np.abs(np.asarray(sol.q[-1]) - q_ref)))
 
     return sweep(label, settings, call, post, lambda: call(warm), cfg, budget, setting)
+
+
+def native_adaptive_sweep(label, name, ex, T, q_ref, cfg, budget, s) -> dict:
+    """The problem's ``lobattodae.mechanics`` twin with error control natively:
+    ``lobattodae.solve(model.problem, model.native(s), ...)`` as the adaptive sweep calls ``solve``
+    (each attempt of step doubling one native call; the same tolerances)."""
+    from lobattodae import mechanics
+
+    model = getattr(mechanics.systems, TWINS[name])()
+    args = model.args(**ex.args._asdict())
+    native = model.native(s)
+
+    def call(tol):
+        return L.solve(model.problem, native, (0.0, T), ex.q0, ex.p0, args=args, lam0=ex.lam0, save_every="final",
+                       throw=False, rtol=tol, atol=tol)
+
+    def post(sol):
+        return solution_point(sol, lambda sol: np.max(np.abs(np.asarray(sol.q[-1]) - q_ref)))
+
+    return sweep(label, cfg["lob_tols"], call, post, lambda: call(1e-6), cfg, budget)
 
 
 def native_sweep(label, name, ex, T, q_ref, cfg, budget, s) -> dict:
@@ -265,6 +289,9 @@ def run_problem(name: str, cfg: dict, budget: float) -> dict:
                                                    "N")
     for s in cfg["const_stages"]:
         runs[f"native s={s}"] = native_sweep(f"lobattodae native s={s}", name, ex, T, q_ref, cfg, budget, s)
+    for s in cfg["native_stages"]:
+        runs[f"native adaptive s={s}"] = native_adaptive_sweep(f"lobattodae native adaptive s={s}", name, ex, T,
+                                                               q_ref, cfg, budget, s)
     for s in cfg["rev_stages"] if name in REVERSIBLE else ():
         # the symmetric scheme's control (default density ‖(f, g)‖); first_step sets ε = h₀ σ(y₀)
         runs[f"reversible s={s}"] = lobattodae_sweep(f"lobattodae reversible s={s}", ex, T, q_ref, cfg, budget, s,
@@ -302,10 +329,12 @@ def summarize(runs) -> dict:
         return a / b if a is not None and b is not None else None
 
     best_ad, best_co, best_any = fastest("adaptive"), fastest("constant"), fastest("adaptive", "constant", "reversible")
-    best_na = fastest("native")
+    best_na, best_nc, best_nad = fastest("native"), fastest("native s="), fastest("native adaptive")
     return {"time_at_1e-8": t, "ours": best_ad, "ours_constant": best_co, "ours_native": best_na,
             "native_over_dopri8": ratio(best_na, "Dopri8"), "native_over_dop853": ratio(best_na, "DOP853"),
-            "native_over_constant": ratio(best_na, best_co),
+            "native_over_constant": ratio(best_na, best_co), "native_constant": best_nc,
+            "native_adaptive": best_nad, "native_adaptive_over_dopri8": ratio(best_nad, "Dopri8"),
+            "native_adaptive_over_adaptive": ratio(best_nad, best_ad),
             "ours_over_dopri8": ratio(best_ad, "Dopri8"), "ours_over_dop853": ratio(best_ad, "DOP853"),
             "ours_over_ida": ratio(best_ad, "IDA"), "constant_over_dopri8": ratio(best_co, "Dopri8"),
             "adaptive_over_constant": ratio(best_ad, best_co), "ours_any": best_any,
@@ -316,7 +345,9 @@ STYLE = {"adaptive s=3": ("#9ecae1", "o", "-"), "adaptive s=4": ("#4292c6", "s",
          "adaptive s=5": ("#08306b", "D", "-"), "adaptive s=6": ("#6a51a3", "p", "-"),
          "adaptive s=7": ("#bcbddc", "h", "-"), "adaptive s=8": ("#54278f", "H", "-"),
          "reversible s=5": ("#2ca02c", "*", "-."), "native s=4": ("#8c564b", "x", "--"),
-         "native s=5": ("#8c564b", "X", "--"), "native s=6": ("#8c564b", "d", "--"), "DOP853": ("#ff7f0e", "^", "-"),
+         "native s=5": ("#8c564b", "X", "--"), "native s=6": ("#8c564b", "d", "--"),
+         "native adaptive s=4": ("#e377c2", "x", "-"), "native adaptive s=5": ("#e377c2", "X", "-"),
+         "native adaptive s=6": ("#e377c2", "d", "-"), "DOP853": ("#ff7f0e", "^", "-"),
          "Dopri8": ("#d62728", "v", "-"), "IDA": ("#9467bd", "P", "-")}
 
 
@@ -325,6 +356,8 @@ def _label(key: str, c: dict) -> str:
         return f"diffrax Dopri8, PID(p={c['pid'][0]:g}, i={c['pid'][1]:g})"
     if key in ("DOP853", "IDA"):
         return {"DOP853": "scipy DOP853 (NumPy rhs)", "IDA": "SUNDIALS IDA (index 2, NumPy residual)"}[key]
+    if key.startswith("native adaptive"):
+        return f"lobattodae {key} (model.native, rtol)"
     kind = key.split()[0]
     return f"lobattodae {key}" + {"adaptive": "", "constant": " (n_steps)", "native": " (model.native, n_steps)",
                                   "reversible": " (ReversibleStepSize)"}[kind]
@@ -335,7 +368,8 @@ def plot(name: str, entry: dict, path: str) -> None:
     runs, sm = entry["runs"], entry["summary"]
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 5.2), gridspec_kw={"width_ratios": [3, 2]})
     keys = [k for k in runs if k.startswith("adaptive")] + ([sm["ours_constant"]] if sm.get("ours_constant") else []) \
-        + ([sm["ours_native"]] if sm.get("ours_native") else []) + [k for k in runs if k.startswith("reversible")] \
+        + [sm[k] for k in ("native_constant", "native_adaptive") if sm.get(k)] \
+        + [k for k in runs if k.startswith("reversible")] \
         + [k for k in ("DOP853", "Dopri8", "IDA") if k in runs]
     for key in keys:
         c = curve(runs, key)
@@ -385,10 +419,12 @@ def ratio_table(out: dict) -> str:
         rows.append([name, run("ours") if sm["ours"] else "not reached", run("ours_constant"), run("ours_native"),
                      ms("Dopri8"), ms("DOP853"), ms("IDA"), r("ours_over_dopri8"), r("ours_over_dop853"),
                      r("ours_over_ida"), r("adaptive_over_constant"), run("ours_any"), r("any_over_dopri8"),
-                     r("any_over_dop853"), r("native_over_dopri8"), r("native_over_dop853")])
+                     r("any_over_dop853"), r("native_over_dopri8"), r("native_over_dop853"),
+                     r("native_adaptive_over_dopri8")])
     return md_table(["problem", "ours adaptive (best s)", "ours constant", "ours native", "Dopri8", "DOP853", "IDA",
                      "adaptive/Dopri8", "adaptive/DOP853", "adaptive/IDA", "adaptive/constant",
-                     "best of ours (JAX)", "best/Dopri8", "best/DOP853", "native/Dopri8", "native/DOP853"], rows)
+                     "best of ours (JAX)", "best/Dopri8", "best/DOP853", "native/Dopri8", "native/DOP853",
+                     "native adaptive/Dopri8"], rows)
 
 
 def main(argv=None) -> int:

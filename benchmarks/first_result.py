@@ -9,6 +9,10 @@ from ``jax.monitoring``):
 
 * ``knife-edge``: the knife edge, s = 4, adaptive (rtol = atol = 1e-8), to the end of its span;
 * ``falling-disk``: the falling disk, s = 4, adaptive (rtol = atol = 1e-8), to the end of its span;
+* ``native-knife-edge``, ``native-falling-disk``: the same runs of the problems' twins written
+  with ``lobattodae.mechanics`` (``mechanics.systems.knife_edge()``, ``falling_disk()``), natively
+  (``model.native(4).solve``: the model built, its C generated and compiled, each attempt a native
+  call; with ``--cache cold`` the compiled library is not kept either);
 * ``andrews``: Andrews' squeezer (7 bodies, 6 holonomic constraints; the external test set),
   s = 5, adaptive (rtol = atol = 1e-8), to t = 0.03;
 * ``bicycle``: the Whipple bicycle at 5 m/s, s = 4, 1000 constant steps over 10 s (the time
@@ -61,6 +65,20 @@ done(f"first result {time.perf_counter() - t0:.2f} s")
     "falling-disk": """
 ex = L.examples.get_example("falling-disk")
 sol = L.solve(ex.problem, L.LobattoIIIAIIIB(stages=4), ex.t_span, ex.q0, ex.p0, args=ex.args, rtol=1e-8, atol=1e-8)
+done(f"first result {time.perf_counter() - t0:.2f} s")
+""",
+    "native-knife-edge": """
+from lobattodae import mechanics
+ex = L.examples.get_example("knife-edge")
+model = mechanics.systems.knife_edge()
+sol = model.native(4).solve(ex.t_span, ex.q0, ex.p0, args=model.args(**ex.args._asdict()), rtol=1e-8, atol=1e-8)
+done(f"first result {time.perf_counter() - t0:.2f} s")
+""",
+    "native-falling-disk": """
+from lobattodae import mechanics
+ex = L.examples.get_example("falling-disk")
+model = mechanics.systems.falling_disk()
+sol = model.native(4).solve(ex.t_span, ex.q0, ex.p0, args=model.args(**ex.args._asdict()), rtol=1e-8, atol=1e-8)
 done(f"first result {time.perf_counter() - t0:.2f} s")
 """,
     "andrews": """

@@ -10,14 +10,12 @@ to round-off". Three parts, every ratio from one run of this script:
   ``model.native(s).integrate`` against ``jax.jit(lobattodae.integrate)`` (the same method,
   ``lam_start="auto"``), interleaved, best of ``--repeats``; the largest difference of every row
   of q and p, relative to 1 + their size.
-* ``replay``: error-controlled runs. ``lobattodae.solve`` (rtol = atol) takes its steps (timed
-  with ``save_every="final"``, best of 5); the same accepted steps are then taken natively as
-  step doubling does (two half steps kept, the whole step solved beside them, each step started
-  from the hidden constraint's λ, each with its own Newton matrix and predictor; a C driver of
-  this script over the library's generated program). The native replay has no rejected
-  attempts, so the comparison is per attempt: JAX's time over its attempts (accepted and
-  rejected) against the replay's over its steps. On the sleigh (T = 1000), diffrax's Dopri8 on
-  the index-1 ODE (jitted, each of ``lib.baselines.PID_SETS``, best) at the same error of q(T).
+* ``adaptive``: error-controlled runs (rtol = atol, ``save_every="final"``): ``lobattodae.solve``
+  with the method (the JAX path's attempts) against ``lobattodae.solve(model.problem,
+  model.native(s), ...)`` (each attempt of step doubling one native call in the same loop),
+  interleaved, best of ``--repeats``; the steps and Newton counts of both, and how far their end
+  points differ. On the sleigh (T = 1000), diffrax's Dopri8 on the index-1 ODE (jitted, each of
+  ``lib.baselines.PID_SETS``, best) at the native run's error of q(T).
 * ``first-result``: fresh processes, no caches (``LOBATTODAE_NO_CACHE=1``, an empty cache
   directory): the falling disk from ``mechanics.systems`` (s = 4, 2000 constant steps) and the
   Whipple bicycle (s = 4, 1000 steps over 10 s), by ``model.native(4).integrate`` and by
@@ -27,14 +25,13 @@ to round-off". Three parts, every ratio from one run of this script:
 
 Usage (repository root)::
 
-    PYTHONPATH=src .venv/bin/python benchmarks/native_step.py --pin-cpu 1 [--part per-step replay first-result]
+    PYTHONPATH=src .venv/bin/python benchmarks/native_step.py --pin-cpu 1 [--part per-step adaptive first-result]
 
 Writes ``benchmarks/results/native_step.json`` (a part run alone replaces that part).
 """
 
 from __future__ import annotations
 
-import ctypes
 import os
 import sys
 import tempfile
@@ -52,7 +49,7 @@ from lib.sweeps import time_at
 from lobattodae import examples, mechanics
 from lobattodae.mechanics import _native
 
-PARTS = ("per-step", "replay", "first-result")
+PARTS = ("per-step", "adaptive", "first-result")
 
 
 class _Start:
@@ -124,61 +121,11 @@ def per_step(repeats: int, quick: bool) -> list[dict]:
     return rows
 
 
-# ------------------------------------------------------------------------------- replay
-#: Step doubling over given steps, as lobattodae._doubling takes them (see the module docstring).
-REPLAY_C = r"""
-int replay_doubling(int n_steps, double t0, const double *hs, double *q, double *p, const double *k,
-                    const double *tab, int extrapolate, double tol, int maxit, long *stats) {
-  Tab tb; memcpy(&tb, tab, sizeof tb);
-  Solver *sv = calloc(2, sizeof(Solver));   /* [0]: the half steps, [1]: the whole step */
-  double comp[2*NQ] = {0.0}, cw[2*NQ], lam1[NM], qh[NQ], ph[NQ], lh[NM], qw[NQ], pw[NQ], lw[NM], l1[NM], v[NQ], w[NQ], rn = 0.0;
-  double t = t0;
-  int result = 0;
-  for (int n = 0; n < n_steps && !result; n++) {
-    const double h = hs[n];
-    model_lambda(t, q, p, k, lam1);
-    memcpy(cw, comp, sizeof cw);
-    result = step(&sv[1], &tb, extrapolate, tol, maxit, t, h, q, p, lam1, cw, k, qw, pw, lw, &rn, stats);
-    if (!result) result = step(&sv[0], &tb, extrapolate, tol, maxit, t, 0.5*h, q, p, lam1, comp, k, qh, ph, lh, &rn, stats);
-    if (!result) { model_lambda(t + 0.5*h, qh, ph, k, lam1);
-                   result = step(&sv[0], &tb, extrapolate, tol, maxit, t + 0.5*h, 0.5*h, qh, ph, lam1, comp, k, q, p, l1, &rn, stats); }
-    /* the estimate's own evaluations: the vector field on the manifold at both results, and at the
-       kept one with the whole step's λ */
-    model_lambda(t + h, qw, pw, k, lw); model_fg(t + h, qw, pw, lw, k, v, w);
-    model_lambda(t + h, q, p, k, lh); model_fg(t + h, q, p, lh, k, v, w); model_fg(t + h, q, p, lw, k, v, w);
-    t += h;
-    stats[2] = n + 1;
-  }
-  free(sv);
-  return result;
-}
-"""
-
-
-def replay_program(model, s: int):
-    lib = ctypes.CDLL(str(_native._compiled(lambda: _native.program_source(model, s) + REPLAY_C,
-                                            f"S={s}\n{model.source}\n{REPLAY_C}", f"replay-{s}")))
-    fn = lib.replay_doubling
-    dp = ctypes.POINTER(ctypes.c_double)
-    fn.argtypes = [ctypes.c_int, ctypes.c_double, dp, dp, dp, dp, dp, ctypes.c_int, ctypes.c_double, ctypes.c_int,
-                   ctypes.POINTER(ctypes.c_long)]
-    tab = _native._tableau(s)
-    method = L.LobattoIIIAIIIB(stages=s)
-
-    def run(hs, q0, p0, args):
-        q, p = np.array(q0, np.float64), np.array(p0, np.float64)
-        hs = np.ascontiguousarray(hs, np.float64)
-        k = np.array([float(args[n]) for n in model.parameters])
-        stats = (ctypes.c_long * 3)()
-        ptr = (lambda a: a.ctypes.data_as(dp))
-        code = fn(hs.size, 0.0, ptr(hs), ptr(q), ptr(p), ptr(k), ptr(tab), int(method._use_extrapolation),
-                  method.tol, method.max_iterations, stats)
-        return q, p, code, {"newton": stats[0], "jacobians": stats[1], "steps": stats[2]}
-
-    return run
-
-
-def replay(repeats: int, quick: bool) -> list[dict]:
+# ----------------------------------------------------------------------------- adaptive
+def adaptive(repeats: int, quick: bool) -> list[dict]:
+    """``lobattodae.solve`` with error control, the JAX path's attempts against the native ones
+    (``solve(model.problem, model.native(s), ...)``), interleaved, best of ``repeats`` after a
+    compiling call; on the sleigh Dopri8 at the same error of q(T)."""
     cases = [("sleigh", 1000.0, 5, 1e-8), ("sleigh", 1000.0, 6, 1e-7), ("falling disk", 100.0, 5, 1e-8),
              ("falling disk", 100.0, 6, 1e-8)]
     if quick:
@@ -186,35 +133,33 @@ def replay(repeats: int, quick: bool) -> list[dict]:
     rows = []
     for name, T, s, tol in cases:
         ex, model, args = pairs()[name]
-        method = L.LobattoIIIAIIIB(stages=s)
+        paths = {"jax": L.LobattoIIIAIIIB(stages=s), "native": model.native(s)}
 
-        def jax_call(save):
-            return L.solve(model.problem, method, (0.0, T), ex.q0, ex.p0, args=args, lam0=ex.lam0, rtol=tol, atol=tol,
-                           save_every=save)
+        def call(path):
+            return L.solve(model.problem, paths[path], (0.0, T), ex.q0, ex.p0, args=args, lam0=ex.lam0, rtol=tol,
+                           atol=tol, save_every="final")
 
-        steps = jax_call(1)
-        hs = np.diff(np.asarray(steps.t))
-        attempts = int(steps.stats["n_steps"]) + int(steps.stats["n_rejected"])
-        jax_s = min(_timed(lambda: jax_call("final")) for _ in range(repeats))
-        run = replay_program(model, s)
-        q, p, code, stats = run(hs, ex.q0, ex.p0, args)
-        native_s = min(_timed(lambda: run(hs, ex.q0, ex.p0, args)) for _ in range(repeats))
-        final = jax_call("final")
-        diff = float(np.max(np.abs(q - np.asarray(final.q[-1]))) / (1 + np.max(np.abs(np.asarray(final.q[-1])))))
-        row = dict(problem=name, T=T, s=s, rtol=tol, steps=len(hs), attempts=attempts, jax_ms=jax_s * 1e3,
-                   native_ms=native_s * 1e3, per_attempt_ratio=(jax_s / attempts) / (native_s / len(hs)),
-                   end_diff=diff, native_status=int(code), jax_newton=int(steps.stats["n_newton"]),
-                   jax_jacobians=int(steps.stats["n_jacobians"]), native_newton=stats["newton"],
-                   native_jacobians=stats["jacobians"])
+        sols = {path: call(path) for path in paths}
+        best = {path: np.inf for path in paths}
+        for _ in range(repeats):
+            for path in paths:
+                best[path] = min(best[path], _timed(lambda: call(path)))
+        row = dict(problem=name, T=T, s=s, rtol=tol, jax_ms=best["jax"] * 1e3, native_ms=best["native"] * 1e3,
+                   ratio=best["jax"] / best["native"])
+        for path, sol in sols.items():
+            row[f"{path}_stats"] = {k: int(sol.stats[k]) for k in ("n_steps", "n_rejected", "n_newton", "n_jacobians")}
+        q_jax, q_native = (np.asarray(sols[path].q[-1]) for path in paths)
+        row["end_diff"] = float(np.max(np.abs(q_native - q_jax)) / (1 + np.max(np.abs(q_jax))))
         if name == "sleigh":
             q_ref = examples.chaplygin_sleigh().exact(np.array([T]))[0][0]
-            row["error"] = float(np.max(np.abs(np.asarray(final.q[-1]) - q_ref)))
-            row["native_error"] = float(np.max(np.abs(q - q_ref)))
-            row["dopri8_ms_at_error"], row["dopri8_points"] = dopri8_at(ex, T, q_ref, row["error"], repeats)
-        log(f"{name:12s} T={T:g} s={s} rtol={tol:g}: {len(hs)} steps ({attempts} attempts); solve {row['jax_ms']:.2f} ms, "
-            f"native replay {row['native_ms']:.3f} ms: {row['per_attempt_ratio']:.1f} x per attempt; end points differ "
-            f"by {diff:.1e}" + (f"; error {row['error']:.2e}, Dopri8 at that error "
-                                f"{row['dopri8_ms_at_error'] or float('nan'):.2f} ms" if name == "sleigh" else ""))
+            row["error"] = float(np.max(np.abs(q_jax - q_ref)))
+            row["native_error"] = float(np.max(np.abs(q_native - q_ref)))
+            row["dopri8_ms_at_error"], row["dopri8_points"] = dopri8_at(ex, T, q_ref, row["native_error"], repeats)
+        attempts = sum(row["native_stats"][k] for k in ("n_steps", "n_rejected"))
+        log(f"{name:12s} T={T:g} s={s} rtol={tol:g}: {attempts} attempts; solve {row['jax_ms']:.2f} ms, natively "
+            f"{row['native_ms']:.2f} ms: {row['ratio']:.2f} x; end points differ by {row['end_diff']:.1e}"
+            + (f"; error {row['native_error']:.2e} (JAX {row['error']:.2e}), Dopri8 at that error "
+               f"{row['dopri8_ms_at_error'] or float('nan'):.2f} ms" if name == "sleigh" else ""))
         rows.append(row)
     return rows
 
@@ -305,7 +250,7 @@ def first_result(repeats: int, cases) -> list[dict]:
 def merged_parts(path: str, out: dict) -> dict:
     """``out`` over what ``path`` holds: the parts not run now are kept (each with its own meta)."""
     old = read_json(path, {}) or {}
-    for key in ("per_step", "replay", "first_result"):
+    for key in ("per_step", "adaptive", "first_result"):
         if key in out:
             old[key] = out[key]
             old[f"{key}_meta"] = out["meta"]
@@ -327,8 +272,8 @@ def main(argv=None):
         log("\n" + md_table(["problem", "s", "h", "native µs/step", "JAX µs/step", "JAX / native", "rows differ"],
                             [[r["problem"], r["s"], r["h"], r["native_us"], r["jax_us"], r["ratio"], r["row_diff"]]
                              for r in out["per_step"]]))
-    if "replay" in opts.part:
-        out["replay"] = replay(repeats, opts.quick)
+    if "adaptive" in opts.part:
+        out["adaptive"] = adaptive(repeats, opts.quick)
     if "first-result" in opts.part:
         out["first_result"] = first_result(min(repeats, 3), opts.first_cases)
     out["meta"]["loadavg_end"] = loadavg()
