@@ -74,7 +74,7 @@ from .._solution import Solution, drift_note
 from .._tableau import lobatto_pair
 from . import _codegen, _native_doubling
 from ._codegen import common_subexpressions, plain_symbols
-from ._native_doubling import ATTEMPT_C, NativeDoubling
+from ._native_doubling import ATTEMPT_C, NativeDoubling, tableau_array
 
 __all__ = ["NativeIntegrator", "NativeResult", "c_compiler", "model_source"]
 
@@ -703,8 +703,7 @@ int run(int n_steps, int every, double t0, double h, int mode, int have_lam0, do
 
 
 def _tableau(s: int) -> np.ndarray:
-    pair = lobatto_pair(s)
-    return np.ascontiguousarray(np.concatenate([pair.a.ravel(), pair.a_hat.ravel(), pair.b, pair.c]), np.float64)
+    return tableau_array(lobatto_pair(s))
 
 
 def program_source(model, stages: int) -> str:
@@ -826,6 +825,7 @@ class NativeIntegrator:
         self._run.restype = ctypes.c_int
         self._tab = _tableau(self.stages)
         self._lib = lib
+        self._doublings: dict = {}  # method -> NativeDoubling (one object: jit's static key stays cheap)
 
     def doubling(self, method, problem=None) -> NativeDoubling:
         """The stepper of :func:`lobattodae.solve`'s error-controlled runs for ``method`` (this
@@ -835,16 +835,20 @@ class NativeIntegrator:
             raise LobattoDAEInputError(
                 f"this NativeIntegrator steps the equations of the model {self.model.name!r}: pass its problem, "
                 f"lobattodae.solve(model.problem, model.native(...), ...), or use native.solve(...).")
-        name = f"lobattodae_attempt_{self.library.stem.rsplit('-', 1)[-1]}"
-        if name not in _TARGETS:
-            jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(self._lib.lobattodae_attempt), platform="cpu")
-            _TARGETS[name] = self._lib  # registered once per process; the library stays loaded
-        sizes = []
-        for fn in (self._lib.attempt_newton_doubles, self._lib.attempt_history_doubles):
-            fn.restype = ctypes.c_long
-            sizes.append(int(fn()))
-        return NativeDoubling(method, target=name, parameters=tuple(self.model.parameters), sizes=tuple(sizes),
-                              tableau=tuple(float(x) for x in self._tab))
+        stepper = self._doublings.get(method)
+        if stepper is None:
+            name = f"lobattodae_attempt_{self.library.stem.rsplit('-', 1)[-1]}"
+            if name not in _TARGETS:
+                jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(self._lib.lobattodae_attempt), platform="cpu")
+                _TARGETS[name] = self._lib  # registered once per process; the library stays loaded
+            sizes = []
+            for fn in (self._lib.attempt_newton_doubles, self._lib.attempt_history_doubles):
+                fn.restype = ctypes.c_long
+                sizes.append(int(fn()))
+            stepper = self._doublings[method] = NativeDoubling(method, target=name,
+                                                               parameters=tuple(self.model.parameters),
+                                                               sizes=tuple(sizes))
+        return stepper
 
     def __repr__(self) -> str:
         return (f"NativeIntegrator({self.model.name!r}, stages={self.stages}, lam_start={self.lam_start!r}, "

@@ -37,7 +37,12 @@ from .._doubling import NOISE, StepDoubling
 from .._results import Result
 from .._stepper import RETRY_FACTOR, LamMonitor, StepInfo, _fresh_monitor, as_step_arrays
 
-__all__ = ["ATTEMPT_C", "NativeDoubling", "NativeDoublingState"]
+__all__ = ["ATTEMPT_C", "NativeDoubling", "NativeDoublingState", "tableau_array"]
+
+
+def tableau_array(pair) -> np.ndarray:
+    """The C programs' ``Tab`` of a :class:`~lobattodae.LobattoPair`: IIIA's a_ij, IIIB's â_ij, b, c."""
+    return np.ascontiguousarray(np.concatenate([pair.a.ravel(), pair.a_hat.ravel(), pair.b, pair.c]), np.float64)
 
 #: The FFI handler (appended to the model's program; needs XLA's FFI header, ``jax.ffi.include_dir()``).
 ATTEMPT_C = r"""
@@ -155,13 +160,13 @@ class NativeDoubling(StepDoubling):
     :meth:`NativeIntegrator.stepper <lobattodae.mechanics.NativeIntegrator.stepper>`.
 
     ``target`` names the registered FFI handler, ``parameters`` the model's parameters in the
-    order of the C program's ``k``, ``sizes`` the doubles of the two state buffers.
+    order of the C program's ``k``, ``sizes`` the doubles of the two state buffers (Newton's
+    matrices, the histories).
     """
 
     target: str = ""
     parameters: tuple = ()
     sizes: tuple = (0, 0)
-    tableau: tuple = ()
 
     def init(self, problem, t0, q0, p0, lam0, args=None, h=None, lam_hidden=None) -> NativeDoublingState:
         dtype = jnp.asarray(q0).dtype
@@ -196,7 +201,7 @@ class NativeDoubling(StepDoubling):
         stop = jax.lax.stop_gradient
         q1, p1, lam1, y_whole, fields, ints, reals, V, W, Lam, y_mid, newton, history, compensation = call(
             stop(t0), stop(h), stop(q0), stop(p0), stop(lam0), stop(k), options, jnp.asarray(self.method.tol, dtype),
-            jnp.asarray(np.asarray(self.tableau), dtype), state.newton, state.history, state.compensation)
+            jnp.asarray(tableau_array(self.pair), dtype), state.newton, state.history, state.compensation)
         y1 = jnp.concatenate([q1, p1])
         diff = y1 - y_whole
         noise = NOISE * self.method.tol * (1.0 + jnp.abs(y1))
