@@ -123,6 +123,20 @@ def test_holonomic_constraints_are_kept_by_the_projection():
     np.testing.assert_allclose(native_sol.q, jax_sol.q, rtol=0, atol=1e-10)  # measured 4e-16
 
 
+def test_backwards_in_time_natively_as_on_the_jax_path(disk):
+    """t1 < t0: negative steps through the native attempt, the same counts and rows at the
+    t_eval times as the JAX path, and back at the start to the error's size."""
+    model, ex, args = disk
+    forward = model.native(4).solve((0.0, 5.0), ex.q0, ex.p0, args=args, rtol=1e-9, atol=1e-9)
+    times = np.linspace(5.0, 0.0, 6)
+    jax_sol, native_sol = _both(model, 4, "auto", (5.0, 0.0), forward.q[-1], forward.p[-1], args, rtol=1e-9,
+                                atol=1e-9, t_eval=times)
+    assert native_sol.success and native_sol.stats["n_steps"] > 1
+    assert {k: native_sol.stats[k] for k in COUNTS} == {k: jax_sol.stats[k] for k in COUNTS}
+    np.testing.assert_allclose(native_sol.q, jax_sol.q, rtol=0, atol=1e-10)
+    assert np.max(np.abs(native_sol.q[-1] - ex.q0)) < 1e-7
+
+
 def test_a_checkpointed_run_resumes_to_the_same_numbers(sleigh, tmp_path):
     """The native attempt's state (Newton matrices, histories) rides in the checkpoint: a run
     stopped after its first chunk and resumed ends on the numbers of an uninterrupted one."""
@@ -148,8 +162,12 @@ def test_what_the_native_attempt_refuses_is_named(sleigh, disk):
     with pytest.raises(LobattoDAEInputError, match="error-controlled steps"):
         L.solve(model.problem, native, (0.0, 1.0), ex.q0, ex.p0, args=args,
                 controller=L.PIController(estimate="embedded"))
-    with pytest.raises(LobattoDAEInputError, match="in lobattodae.solve only"):
-        L.integrate_adaptive(model.problem, native, (0.0, 1.0), ex.q0, ex.p0, ex.lam0, args)
+    for pure in (lambda: L.integrate_adaptive(model.problem, native, (0.0, 1.0), ex.q0, ex.p0, ex.lam0, args),
+                 lambda: L.integrate(model.problem, native, 0.0, 0.1, 10, ex.q0, ex.p0, ex.lam0, args),
+                 lambda: L.ensemble(model.problem, native, np.stack([ex.q0] * 2), np.stack([ex.p0] * 2),
+                                    np.stack([ex.lam0] * 2), args, t0=0.0, h=0.1, n_steps=3)):
+        with pytest.raises(LobattoDAEInputError, match="use its JAX method, native.method"):
+            pure()
     with pytest.raises(LobattoDAEInputError, match="pass its problem"):
         disk_model, disk_ex, disk_args = disk
         L.solve(disk_model.problem, native, (0.0, 1.0), disk_ex.q0, disk_ex.p0, args=disk_args)

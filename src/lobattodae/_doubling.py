@@ -96,6 +96,7 @@ from ._problem import vector_field
 from ._results import Result
 from ._stepper import History, LobattoIIIAIIIB, StepInfo, StepperState, as_step_arrays
 from ._tableau import LobattoPair
+from ._validate import check_method
 
 __all__ = ["DoublingState", "StepDoubling", "for_error_control"]
 
@@ -299,12 +300,9 @@ def for_error_control(method, controller, problem=None, *, native: bool = False)
     (:mod:`lobattodae.mechanics._native_doubling`) for ``problem``, the model's; other
     controllers are refused with the way out.
     """
+    check_method(method, native=native)
     integrator = None
-    if not isinstance(method, LobattoIIIAIIIB) and hasattr(method, "doubling"):  # a NativeIntegrator
-        if not native:
-            raise LobattoDAEInputError(
-                f"{method!r} takes error-controlled steps in lobattodae.solve only (a forward run on the CPU: no "
-                "jax.grad, jit or vmap through it); here use its JAX method, native.method, instead.")
+    if not isinstance(method, LobattoIIIAIIIB):  # a NativeIntegrator
         integrator, method = method, method.method
     if not isinstance(controller, PIController) or controller.estimate != "doubling":
         if integrator is not None:

@@ -84,7 +84,7 @@ from ._ensemble_inputs import (
     merge_args,
 )
 from ._options import STATIC_MAX_STEPS, AdaptiveSteps, ConstantSteps, Saving, TimeSpan, check_count
-from ._validate import check_tolerance_attainable
+from ._validate import check_method, check_tolerance_attainable
 
 __all__ = [
     "AXIS",
@@ -400,6 +400,7 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
     each other at the end (:func:`jax.experimental.multihost_utils.sync_global_devices`, which
     needs JAX's CPU collectives on CPU), so that any process can then load all files.
     """
+    check_method(method)
     if save not in SAVE_MODES:
         raise LobattoDAEInputError(f"save must be one of {SAVE_MODES}; got {save!r}.")
     if if_exists not in IF_EXISTS:

@@ -40,6 +40,7 @@ from ._projection import project_row
 from ._results import Result
 from ._rows import unpack_rows
 from ._stepper import LobattoIIIAIIIB
+from ._validate import check_method
 
 __all__ = ["AUTO_CHECKPOINT_BYTES", "AdaptiveResult", "IntegrateResult", "integrate", "integrate_adaptive",
            "kept_bytes", "resolve_checkpoints"]
@@ -166,6 +167,7 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
         ``n_steps`` is not a positive integer, or ``checkpoints`` is not ``"auto"``, None or
         a positive integer.
     """
+    check_method(method)
     check_count("n_steps", n_steps)
     checkpoints = resolve_checkpoints(checkpoints, n_steps, kept_bytes(method, np.shape(q0)[-1], np.shape(lam0)[-1]))
     cast = functools.partial(jnp.asarray, dtype=jnp.float64)

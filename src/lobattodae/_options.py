@@ -38,8 +38,7 @@ from ._events import Event, as_events
 from ._chunks import CHUNK, recording_of
 from ._loop import Output, Recording
 from ._results import Result
-from ._stepper import LobattoIIIAIIIB
-from ._validate import check_tolerance_attainable
+from ._validate import check_method, check_tolerance_attainable
 
 __all__ = [
     "ATOL",
@@ -517,11 +516,7 @@ class RunOptions:
     def check(cls, method, t_span, n_steps, dt, rtol, atol, first_step, max_step, controller, t_eval, dense_output,
               events, save_every, chunk_size, max_recoveries, checkpoint, checkpoint_every, resume, t_eval_rows=None,
               max_steps=None):
-        if not isinstance(method, LobattoIIIAIIIB) and not hasattr(method, "doubling"):  # or a NativeIntegrator
-            raise TypeError(
-                f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3) (or, in solve, a model's "
-                f"NativeIntegrator, model.native(stages)); got {method!r}."
-            )
+        check_method(method, native=True)
         check_tolerance_attainable(method)
         span = TimeSpan.of(t_span)
         steps = steps_over(span, n_steps, dt, rtol=rtol, atol=atol, first_step=first_step, max_step=max_step,

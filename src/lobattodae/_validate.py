@@ -51,6 +51,36 @@ def check_float64() -> None:
         )
 
 
+def check_method(method, *, native: bool = False) -> None:
+    """``method`` must be a :class:`~lobattodae.LobattoIIIAIIIB`; where ``native`` allows it
+    (:func:`~lobattodae.solve`), also a model's
+    :class:`~lobattodae.mechanics.NativeIntegrator`, which the pure entry points refuse with the
+    way out.
+
+    Raises
+    ------
+    TypeError
+        Neither.
+    LobattoDAEInputError
+        A NativeIntegrator where it cannot run.
+    """
+    from ._stepper import LobattoIIIAIIIB
+
+    if isinstance(method, LobattoIIIAIIIB):
+        return
+    if callable(getattr(method, "doubling", None)):  # a NativeIntegrator (lobattodae.mechanics)
+        if native:
+            return
+        raise LobattoDAEInputError(
+            f"{method!r} runs in lobattodae.solve (error control) and in its own integrate and solve (constant "
+            "steps), forward on the CPU: no jax.grad, jit, vmap or ensemble through it; here use its JAX method, "
+            "native.method, instead.")
+    raise TypeError(
+        f"method must be a LobattoIIIAIIIB instance, e.g. LobattoIIIAIIIB(stages=3)"
+        + (" (or a model's NativeIntegrator, model.native(stages))" if native else "") + f"; got {method!r}."
+    )
+
+
 def check_tolerance_attainable(method) -> None:
     """Refuse a Newton tolerance ``method.tol`` below what float64 can deliver.
 

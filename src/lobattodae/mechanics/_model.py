@@ -435,16 +435,18 @@ class LagrangianModel:
         return self._eval("f", t, (q, p), (("q", self.n), ("p", self.n)), args)
 
     def native(self, stages: int = 3, *, lam_start: str = "auto", tol: float = 1e-14, max_iterations: int = 20):
-        """This model's constant steps in compiled C: a :class:`~lobattodae.mechanics.NativeIntegrator`.
+        """This model's steps in compiled C: a :class:`~lobattodae.mechanics.NativeIntegrator`.
 
         The library's scheme and Newton rules, with the model's functions generated from its
         SymPy expressions; compiled with the system's C compiler on first use and kept in the user
-        cache directory (a new process loads it). 2.0–6.7 × less time per step than
-        :func:`lobattodae.integrate` on a CPU, with results equal to round-off
-        (``benchmarks/RESULTS.md``, 2026-11-29 11:15); forward only: the JAX path stays the one
-        for ``jax.grad``, ``vmap``, GPUs, error control, dense output and events. Holonomic
-        constraints are kept by the library's projection after each step. One integrator is kept
-        per (stages, options).
+        cache directory (a new process loads it). Constant steps run whole in C, 2.0–6.7 × less
+        time per step than :func:`lobattodae.integrate` on a CPU, with results equal to round-off
+        (``benchmarks/RESULTS.md``, 2026-11-29 11:15); error-controlled steps run in
+        :func:`lobattodae.solve`'s loop, each attempt one native call, with every option of
+        ``solve`` (events, ``t_eval``, dense output) and the same steps, 1.9–2.8 × less time
+        (2026-11-29, 14:00). Forward only, on the CPU: the JAX path stays the one for ``jax.grad``,
+        ``vmap``, ensembles and GPUs. Holonomic constraints are kept by the library's projection
+        after each step. One integrator is kept per (stages, options).
 
         Parameters
         ----------
@@ -454,9 +456,11 @@ class LagrangianModel:
         Returns
         -------
         NativeIntegrator
-            ``solve(t_span, q0, p0, n_steps=..., args=...)`` returns a
-            :class:`~lobattodae.Solution` as :func:`lobattodae.solve` does for constant steps;
-            ``integrate(t0, h, n_steps, q0, p0, lam0=None, args=None)`` is the bare run.
+            ``solve(t_span, q0, p0, n_steps=..., args=...)`` (constant steps) or
+            ``solve(t_span, q0, p0, rtol=..., args=...)`` (error control, with any option of
+            :func:`lobattodae.solve`) returns a :class:`~lobattodae.Solution` as
+            :func:`lobattodae.solve` does; ``integrate(t0, h, n_steps, q0, p0, lam0=None,
+            args=None)`` is the bare run of constant steps.
 
         Raises
         ------
@@ -467,6 +471,7 @@ class LagrangianModel:
         --------
         >>> native = sleigh.native(stages=4)                                   # doctest: +SKIP
         >>> sol = native.solve((0.0, 100.0), q0, p0, n_steps=2000, args=args)  # doctest: +SKIP
+        >>> sol = native.solve((0.0, 100.0), q0, p0, rtol=1e-8, args=args)     # doctest: +SKIP
         >>> q, p, lam, status, *_ = native.integrate(0.0, 0.05, 2000, q0, p0, args=args)  # doctest: +SKIP
         """
         from .._stepper import LobattoIIIAIIIB

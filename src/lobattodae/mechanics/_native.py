@@ -2,16 +2,21 @@ r"""A native step for models of :mod:`lobattodae.mechanics`: generated C, compil
 
 :meth:`LagrangianModel.native <lobattodae.mechanics.LagrangianModel.native>` writes the model's
 functions and the library's scheme as one C program, compiles it with the system's C compiler
-the first time it is asked for (kept in the user cache directory, see below) and runs constant
-steps in it, called through :mod:`ctypes`. On a CPU a step of a small system costs XLA:CPU's
-overhead per kernel (hundreds of tiny kernels per step, about 57 ns each; issue #26), which
-native code does not pay: measured 2.0–6.7 × less time per step than ``lobattodae.integrate``
-(sleigh, falling disk, s = 3…6; the Whipple bicycle 3.7 ×; 1.24 × the hand-written C limit) with
-results equal to round-off, and a first result in under a second for the falling disk, ten
-seconds for the bicycle (``benchmarks/native_step.py``, ``benchmarks/RESULTS.md``, 2026-11-29
-11:15). The JAX path stays the one for ``jax.grad``, ``vmap``, GPUs, error control, dense output
-and events: this is a forward integrator of constant steps. A run keeps no state outside its
-call and releases Python's global lock, so runs in threads use several CPUs.
+the first time it is asked for (kept in the user cache directory, see below) and runs it two
+ways. Constant steps run whole in C, called through :mod:`ctypes` (:meth:`NativeIntegrator.integrate`,
+:meth:`NativeIntegrator.solve` with ``n_steps``); error-controlled steps run in
+:func:`lobattodae.solve`'s loop with each attempt of step doubling one XLA FFI call into the same
+program (:mod:`._native_doubling`; ``solve`` with ``rtol``). On a CPU a step of a small system
+costs XLA:CPU's overhead per kernel (hundreds of tiny kernels per step, about 57 ns each; issue
+#26), which native code does not pay: measured 2.0–6.7 × less time per step than
+``lobattodae.integrate`` (sleigh, falling disk, s = 3…6; the Whipple bicycle 3.7 ×; 1.24 × the
+hand-written C limit) with results equal to round-off, and a first result in under a second for
+the falling disk, ten seconds for the bicycle (``benchmarks/native_step.py``,
+``benchmarks/RESULTS.md``, 2026-11-29 11:15); error-controlled runs 1.9–2.8 × less time than
+``lobattodae.solve`` with the same steps (2026-11-29, 14:00). The JAX path stays the one for
+``jax.grad``, ``vmap``, ensembles and GPUs: this is a forward integrator on the CPU. A
+constant-step run keeps no state outside its call and releases Python's global lock, so runs in
+threads use several CPUs.
 
 **The scheme** is the library's (:mod:`lobattodae._stage_equations`; the rows are written out
 above the C that implements them): unknowns ``(Q_2..Q_s, P_1..P_s, Z_2..Z_s)``, ``Z = hΛ``; the
@@ -787,7 +792,9 @@ _INT_P = ctypes.POINTER(ctypes.c_int32)
 
 
 class NativeIntegrator:
-    """Constant steps of a model's Lobatto IIIA-IIIB method in compiled C (see the module docstring).
+    """A model's Lobatto IIIA-IIIB method in compiled C (see the module docstring): constant steps
+    (:meth:`integrate`, :meth:`solve` with ``n_steps``) and the attempts of error-controlled runs
+    (:meth:`solve` with ``rtol``, or ``lobattodae.solve(model.problem, native, ...)``).
 
     Made by :meth:`LagrangianModel.native <lobattodae.mechanics.LagrangianModel.native>` from a
     :class:`~lobattodae.LobattoIIIAIIIB` (its stages, ``lam_start``, ``tol`` and
