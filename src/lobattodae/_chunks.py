@@ -166,6 +166,19 @@ def _start(t0, t1, options: ControlOptions, q0, p0, lam0) -> tuple:
     return t0, t1, options, q0, p0, lam0
 
 
+def to_host(tree):
+    """The arrays of ``tree`` as NumPy arrays, as ``jax.device_get`` returns them.
+
+    On the CPU each is read directly (``np.asarray``): ``jax.device_get`` first starts an
+    asynchronous copy of every array, which on the CPU copies nothing and costs ~17 µs per array,
+    ~120 µs for the seven of a chunk (jax 0.10: 6 against 124 µs). On accelerators the
+    asynchronous copies overlap, and ``jax.device_get`` is used."""
+    leaves = jax.tree_util.tree_leaves(tree)  # one compiled call's outputs: all on the same devices
+    if leaves and isinstance(leaves[0], jax.Array) and {d.platform for d in leaves[0].devices()} == {"cpu"}:
+        return jax.tree_util.tree_map(np.asarray, tree)
+    return jax.device_get(tree)
+
+
 def init_host(problem, method, controller, output: Output, t0, t1, options: ControlOptions, q0, p0, lam0,
               args) -> tuple[State, StatePacking]:
     """:func:`init_state`, compiled, with the state returned to the host (NumPy arrays) and the
@@ -173,7 +186,7 @@ def init_host(problem, method, controller, output: Output, t0, t1, options: Cont
     start = _start(t0, t1, options, q0, p0, lam0)
     packing = _state_packing(problem, method, controller, output, *start, args)
     packed = _init_packed(problem, method, controller, output, packing, *start, args)
-    return packing.unpack(*jax.device_get(packed)), packing
+    return packing.unpack(*to_host(packed)), packing
 
 
 def start_host(problem, method, controller, output: Output, t0, t1, options: ControlOptions, q0, p0, lam0, args,
@@ -209,7 +222,7 @@ def _run_chunk(problem, method, controller, output, packing, fresh, packed, star
     recording = recording_of(length) if recording is None else recording
     out = _run_packed(problem, method, controller, output, packing, np.asarray(fresh), *packed, start, lam_hidden,
                       args, length, recording)
-    packed, chunk = jax.device_get(out)
+    packed, chunk = to_host(out)
     n, m = start[3].shape[-1], start[5].shape[-1]
     return packing.unpack(*packed), chunk._replace(rows=unpack_rows(*chunk.rows, n, m))
 

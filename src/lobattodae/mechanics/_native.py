@@ -835,9 +835,29 @@ class NativeIntegrator:
         self._doublings: dict = {}  # method -> NativeDoubling (one object: jit's static key stays cheap)
 
     def doubling(self, method, problem=None) -> NativeDoubling:
-        """The stepper of :func:`lobattodae.solve`'s error-controlled runs for ``method`` (this
-        integrator's method as :func:`~lobattodae._doubling.for_error_control` adapts it): each
-        attempt of step doubling one call into this program (:mod:`._native_doubling`)."""
+        """The stepper of :func:`lobattodae.solve`'s error-controlled runs: each attempt of step
+        doubling one call into this program (``lobattodae.mechanics._native_doubling``).
+
+        Called by ``solve`` (users pass the integrator itself as ``solve``'s method).
+
+        Parameters
+        ----------
+        method : LobattoIIIAIIIB
+            This integrator's method as error control runs it (``lam_start="auto"`` made
+            ``"consistent"``).
+        problem : optional
+            The problem ``solve`` was given: it must be this model's ``problem``.
+
+        Returns
+        -------
+        NativeDoubling
+            One per method (kept), so that the compiled loop's key stays the same object.
+
+        Raises
+        ------
+        LobattoDAEInputError
+            ``problem`` is not this model's.
+        """
         if problem is not None and problem is not self.model.problem:
             raise LobattoDAEInputError(
                 f"this NativeIntegrator steps the equations of the model {self.model.name!r}: pass its problem, "
