@@ -296,24 +296,16 @@ def for_error_control(method, controller, problem=None, *, native: bool = False)
     controllers run the method as it is.
 
     ``method`` may be a model's :class:`~lobattodae.mechanics.NativeIntegrator` where ``native``
-    allows it (:func:`lobattodae.solve`): its attempts of step doubling are native calls
-    (:mod:`lobattodae.mechanics._native_doubling`) for ``problem``, the model's; other
-    controllers are refused with the way out.
+    allows it (:func:`lobattodae.solve`): the same decisions, the steps (or attempts of step
+    doubling) then native calls for ``problem``, the model's
+    (:mod:`lobattodae.mechanics._native_loop`).
     """
     check_method(method, native=native)
     integrator = None
     if not isinstance(method, LobattoIIIAIIIB):  # a NativeIntegrator
         integrator, method = method, method.method
-    if not isinstance(controller, PIController) or controller.estimate != "doubling":
-        if integrator is not None:
-            raise LobattoDAEInputError(
-                f"a NativeIntegrator in lobattodae.solve takes error-controlled steps (rtol, atol; PIController with "
-                f"its default estimate), not {controller!r}: for constant steps use native.solve(t_span, q0, p0, "
-                "n_steps=...), or pass native.method to lobattodae.solve.")
-        if not isinstance(controller, PIController):
-            return method
-    if method.lam_start == "auto":
+    if isinstance(controller, PIController) and method.lam_start == "auto":
         method = dataclasses.replace(method, lam_start="consistent")
-    if controller.estimate != "doubling":
-        return method
-    return StepDoubling(method) if integrator is None else integrator.doubling(method, problem)
+    if isinstance(controller, PIController) and controller.estimate == "doubling":
+        return StepDoubling(method) if integrator is None else integrator.doubling(method, problem)
+    return method if integrator is None else integrator.single(method, problem)

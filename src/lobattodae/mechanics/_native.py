@@ -6,7 +6,7 @@ the first time it is asked for (kept in the user cache directory, see below) and
 ways. Constant steps run whole in C, called through :mod:`ctypes` (:meth:`NativeIntegrator.integrate`,
 :meth:`NativeIntegrator.solve` with ``n_steps``); error-controlled steps run in
 :func:`lobattodae.solve`'s loop with each attempt of step doubling one XLA FFI call into the same
-program (:mod:`._native_doubling`; ``solve`` with ``rtol``). On a CPU a step of a small system
+program (:mod:`._native_loop`; ``solve`` with ``rtol``). On a CPU a step of a small system
 costs XLA:CPU's overhead per kernel (hundreds of tiny kernels per step, about 57 ns each; issue
 #26), which native code does not pay: measured 2.0–6.7 × less time per step than
 ``lobattodae.integrate`` (sleigh, falling disk, s = 3…6; the Whipple bicycle 3.7 ×; 1.24 × the
@@ -77,9 +77,9 @@ from .._options import check_count
 from .._results import Result
 from .._solution import Solution, drift_note
 from .._tableau import lobatto_pair
-from . import _codegen, _native_doubling
+from . import _codegen, _native_loop
 from ._codegen import common_subexpressions, plain_symbols
-from ._native_doubling import ATTEMPT_C, NativeDoubling, tableau_array
+from ._native_loop import ATTEMPT_C, NativeDoubling, NativeStep, tableau_array
 
 __all__ = ["NativeIntegrator", "NativeResult", "c_compiler", "model_source"]
 
@@ -734,7 +734,7 @@ def _tableau(s: int) -> np.ndarray:
 
 def program_source(model, stages: int) -> str:
     """The whole C program of (model, s): the policies, the model's functions, the step, the run
-    and the error-controlled attempt (:mod:`._native_doubling`)."""
+    and the error-controlled attempt (:mod:`._native_loop`)."""
     return ("#include <math.h>\n#include <string.h>\n" + f"#define S {int(stages)}\n" + _constants()
             + model_source(model) + _STEP_C + ATTEMPT_C)
 
@@ -772,7 +772,7 @@ def _library_dir() -> Path:
 
 #: What the generated C depends on besides the model and s: this generator's own code.
 _GENERATOR = hashlib.sha256(b"".join(Path(f).read_bytes() for f in (__file__, _codegen.__file__,
-                                                                     _native_doubling.__file__))).hexdigest()
+                                                                     _native_loop.__file__))).hexdigest()
 
 
 def _compiled(make_source, inputs: str, label: str) -> Path:
@@ -853,11 +853,11 @@ class NativeIntegrator:
         self._run.restype = ctypes.c_int
         self._tab = _tableau(self.stages)
         self._lib = lib
-        self._doublings: dict = {}  # method -> NativeDoubling (one object: jit's static key stays cheap)
+        self._steppers: dict = {}  # (kind, method) -> the loop's stepper (one object: jit's static key stays cheap)
 
     def doubling(self, method, problem=None) -> NativeDoubling:
         """The stepper of :func:`lobattodae.solve`'s error-controlled runs: each attempt of step
-        doubling one call into this program (``lobattodae.mechanics._native_doubling``).
+        doubling one call into this program (``lobattodae.mechanics._native_loop``).
 
         Called by ``solve`` (users pass the integrator itself as ``solve``'s method).
 
@@ -879,23 +879,56 @@ class NativeIntegrator:
         LobattoDAEInputError
             ``problem`` is not this model's.
         """
+        return self._stepper(NativeDoubling, "lobattodae_attempt", ("attempt_newton_doubles",
+                                                                    "attempt_history_doubles"), method, problem)
+
+    def single(self, method, problem=None) -> NativeStep:
+        """The stepper of :func:`lobattodae.solve`'s runs under its other controllers (constant
+        steps, :class:`~lobattodae.ReversibleStepSize`, the embedded estimate): each step one call
+        into this program (``lobattodae.mechanics._native_loop``).
+
+        Called by ``solve`` (users pass the integrator itself as ``solve``'s method).
+
+        Parameters
+        ----------
+        method : LobattoIIIAIIIB
+            This integrator's method as the controller runs it.
+        problem : optional
+            The problem ``solve`` was given: it must be this model's ``problem``.
+
+        Returns
+        -------
+        NativeStep
+            One per method (kept).
+
+        Raises
+        ------
+        LobattoDAEInputError
+            ``problem`` is not this model's.
+        """
+        return self._stepper(NativeStep, "lobattodae_step", ("step_newton_doubles", "step_history_doubles"), method,
+                             problem)
+
+    def _stepper(self, kind, handler: str, size_functions, method, problem):
+        """The loop's stepper ``kind`` for ``method`` over the FFI ``handler`` (registered once per
+        process), kept per (kind, method) so that the compiled loop's key stays one object."""
         if problem is not None and problem is not self.model.problem:
             raise LobattoDAEInputError(
                 f"this NativeIntegrator steps the equations of the model {self.model.name!r}: pass its problem, "
                 f"lobattodae.solve(model.problem, model.native(...), ...), or use native.solve(...).")
-        stepper = self._doublings.get(method)
+        stepper = self._steppers.get((kind, method))
         if stepper is None:
-            name = f"lobattodae_attempt_{self.library.stem.rsplit('-', 1)[-1]}"
+            name = f"{handler}_{self.library.stem.rsplit('-', 1)[-1]}"
             if name not in _TARGETS:
-                jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(self._lib.lobattodae_attempt), platform="cpu")
+                jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(self._lib, handler)), platform="cpu")
                 _TARGETS[name] = self._lib  # registered once per process; the library stays loaded
             sizes = []
-            for fn in (self._lib.attempt_newton_doubles, self._lib.attempt_history_doubles):
+            for function in size_functions:
+                fn = getattr(self._lib, function)
                 fn.restype = ctypes.c_long
                 sizes.append(int(fn()))
-            stepper = self._doublings[method] = NativeDoubling(method, target=name,
-                                                               parameters=tuple(self.model.parameters),
-                                                               sizes=tuple(sizes))
+            stepper = self._steppers[(kind, method)] = kind(method, target=name, parameters=tuple(self.model.parameters),
+                                                             sizes=tuple(sizes))
         return stepper
 
     def __repr__(self) -> str:
@@ -984,13 +1017,13 @@ class NativeIntegrator:
         :class:`~lobattodae.Solution` (its plots, saving, scipy's views and ``energy_error`` work
         on it).
 
-        With ``n_steps`` or ``dt``, constant steps: the whole run is one call into the compiled
-        program (rows and ``stats`` made there; ``save_every`` is the only output option). Else
-        error-controlled steps (``rtol``, ``atol``): ``lobattodae.solve(model.problem, self, ...)``,
-        the library's loop whose every attempt of step doubling is one native call
-        (:mod:`lobattodae.mechanics._native_doubling`), with all of :func:`lobattodae.solve`'s
-        options (``t_eval``, ``events``, ``dense_output``, ``max_step``, checkpoints, ...), the
-        same steps as the JAX path to round-off.
+        With ``n_steps`` or ``dt`` and no other option than ``save_every``, constant steps in one
+        call into the compiled program (rows and ``stats`` made there). Otherwise
+        ``lobattodae.solve(model.problem, self, ...)``: the library's loop, each step (or attempt of
+        step doubling, under error control: the default, ``rtol``, ``atol``) one native call
+        (``lobattodae.mechanics._native_loop``), with every option of :func:`lobattodae.solve`
+        (``t_eval``, ``events``, ``dense_output``, ``controller``, ``max_step``, checkpoints, ...)
+        and the steps of the JAX path.
 
         Parameters
         ----------
@@ -1012,7 +1045,7 @@ class NativeIntegrator:
             Raise :class:`~lobattodae.NewtonFailure` when a step fails (default), or return the
             computed prefix with ``success`` False.
         **options
-            Error-controlled steps: the other keywords of :func:`lobattodae.solve`.
+            The other keywords of :func:`lobattodae.solve`.
 
         Returns
         -------
@@ -1030,17 +1063,11 @@ class NativeIntegrator:
         from .._options import ConstantSteps, TimeSpan
         from .._validate import CONSISTENCY_TOL
 
-        if n_steps is None and dt is None:
+        if (n_steps is None and dt is None) or rtol is not None or atol is not None or options:
             from .._solve import solve
 
-            return solve(self.model.problem, self, t_span, q0, p0, rtol=rtol, atol=atol, save_every=save_every,
-                         lam0=lam0, args=args, throw=throw, **options)
-        if rtol is not None or atol is not None or options:
-            given = sorted([*(["rtol"] if rtol is not None else []), *(["atol"] if atol is not None else []), *options])
-            raise LobattoDAEInputError(
-                f"native constant steps (n_steps, dt) take save_every, lam0, args and throw, not {', '.join(given)}: "
-                "drop n_steps/dt for error-controlled steps with every option of lobattodae.solve, or use "
-                "lobattodae.solve(model.problem, native.method, n_steps=..., ...) on the JAX path.")
+            return solve(self.model.problem, self, t_span, q0, p0, n_steps=n_steps, dt=dt, rtol=rtol, atol=atol,
+                         save_every=save_every, lam0=lam0, args=args, throw=throw, **options)
         span = TimeSpan.of(t_span)
         steps = ConstantSteps.over(span, n_steps, dt)
         every = _stride(save_every, steps.n)

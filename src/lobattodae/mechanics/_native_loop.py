@@ -1,19 +1,22 @@
-r"""Error-controlled steps of a model's native program inside :func:`lobattodae.solve`'s loop.
+r"""A model's native program inside :func:`lobattodae.solve`'s loop: each step, or each attempt
+of step doubling, one XLA FFI call into the model's generated C (:mod:`._native`).
 
 An error-controlled attempt of step doubling (:mod:`lobattodae._doubling`: the whole step
 ``ỹ_1 = Φ_h(y_0)``, the two half steps ``y_1 = Φ_{h/2}(Φ_{h/2}(y_0))`` that are kept, and the
 vector fields the estimate's share reads) is the part of a run that costs: on the JAX path
 XLA:CPU runs it as hundreds of tiny kernels (about 100 µs on the Chaplygin sleigh, where the
 same attempt in C takes 25 µs; ``benchmarks/RESULTS.md``, 2026-11-29 12:45). Here the whole
-attempt is one XLA FFI call into the model's generated C (:mod:`._native`, the handler
-``lobattodae_attempt`` below), while the rest of the run stays the library's JAX: the share of
-the difference that is the error (:meth:`StepDoubling._share`), the controller, the λ drift
-monitor, events, ``t_eval``, dense output and recording. The steps are those of the JAX
-doubling up to where Newton stops below its tolerance.
+attempt is one call (:class:`NativeDoubling`, the handler ``lobattodae_attempt`` below), while
+the rest of the run stays the library's JAX: the share of the difference that is the error
+(:meth:`StepDoubling._share`), the controller, the λ drift monitor, events, ``t_eval``, dense
+output and recording. The loop's other controllers (constant steps, reversible control, the
+embedded estimate) take single steps (:class:`NativeStep`, the handler ``lobattodae_step``), the
+multiplier policy and the embedded estimate applied around the call by the method's own code.
+The steps are those of the JAX path up to where Newton stops below its tolerance.
 
 **State.** The loop carries the handler's memory as two opaque float64 buffers: Newton's
-matrices (LU factors, the step sizes and round-off levels they were made with, one set for the
-whole step and one for the half steps), kept from every attempt whatever became of it, as the
+matrices (LU factors, the step sizes and round-off levels they were made with; under step
+doubling one set for the whole step and one for the half steps), kept from every attempt whatever became of it, as the
 JAX path keeps its Jacobian factorisation; and the predictors' histories (the last stage slopes
 and their correction), selected back after a rejected attempt like the JAX state
 (:meth:`after_rejection`), together with the compensation of the summed step ends.
@@ -26,7 +29,7 @@ it runs on the CPU, and under ``vmap`` one lane after the other.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -35,9 +38,11 @@ import numpy as np
 from .._dense import joined, one_piece
 from .._doubling import NOISE, StepDoubling
 from .._results import Result
+from .. import _stage_equations as se
+from .._problem import consistent_lambda
 from .._stepper import RETRY_FACTOR, LamMonitor, StepInfo, _fresh_monitor, as_step_arrays
 
-__all__ = ["ATTEMPT_C", "NativeDoubling", "NativeDoublingState", "tableau_array"]
+__all__ = ["ATTEMPT_C", "NativeDoubling", "NativeDoublingState", "NativeStep", "NativeStepState", "tableau_array"]
 
 
 def tableau_array(pair) -> np.ndarray:
@@ -54,6 +59,8 @@ typedef struct { Solver whole, half; } AttemptNewton;
 typedef struct { History whole, half; } AttemptHistory;
 long attempt_newton_doubles(void) { return (long)((sizeof(AttemptNewton) + 7) / 8); }
 long attempt_history_doubles(void) { return (long)((sizeof(AttemptHistory) + 7) / 8); }
+long step_newton_doubles(void) { return (long)((sizeof(Solver) + 7) / 8); }
+long step_history_doubles(void) { return (long)((sizeof(History) + 7) / 8); }
 
 static double max_abs_diff(const double *a, const double *b, int n) {
   double d = 0.0; for (int j = 0; j < n; j++) d = fmax(d, fabs(a[j] - b[j])); return d;
@@ -141,7 +148,57 @@ XLA_FFI_Error* lobattodae_attempt(XLA_FFI_CallFrame* frame) {
   reals[0] = res_max;
   return NULL;
 }
+
+/* One step of the method (lobattodae.LobattoIIIAIIIB.step) from (t0, q0, p0) with the start
+   multiplier Λ_1 = lam_start (the policy is applied by the caller), for the loop's other
+   controllers (constant steps, reversible control, the embedded estimate). Arguments: t0, h, q0,
+   p0, lam_start, k, options (extrapolate, max_iterations), tol, tableau, Newton's matrix, the
+   history, compensation. Results: q1, p1, lam1, λ(t1, q1, p1), ints (result, Newton iterations,
+   Newton matrices), the last residual norm, the stage slopes V, W and multipliers Λ, and the new
+   Newton matrix, history and compensation (aliased to their arguments). */
+XLA_FFI_Error* lobattodae_step(XLA_FFI_CallFrame* frame) {
+  if (frame->extension_start && frame->extension_start->type == XLA_FFI_Extension_Metadata) {
+    XLA_FFI_Metadata_Extension* ext = (XLA_FFI_Metadata_Extension*)frame->extension_start;
+    ext->metadata->api_version.major_version = XLA_FFI_API_MAJOR;
+    ext->metadata->api_version.minor_version = XLA_FFI_API_MINOR;
+    ext->metadata->traits = 0;
+    return NULL;
+  }
+  if (frame->stage != XLA_FFI_ExecutionStage_EXECUTE) return NULL;
+  const double t0 = *(const double*)ARG(0), h = *(const double*)ARG(1);
+  const double *q0 = ARG(2), *p0 = ARG(3), *start = ARG(4), *k = ARG(5);
+  const int *options = ARG(6);
+  const double tol = *(const double*)ARG(7);
+  Tab tb; memcpy(&tb, ARG(8), sizeof tb);
+  double *q1 = RET(0), *p1 = RET(1), *l1 = RET(2), *hidden = RET(3);
+  int *ints = RET(4); double *res = RET(5), *V = RET(6), *W = RET(7), *Lm = RET(8);
+  Solver *nw = RET(9); History *hs = RET(10); double *comp = RET(11);
+  if ((void*)nw != ARG(9)) memcpy(nw, ARG(9), sizeof(Solver));
+  if ((void*)hs != ARG(10)) memcpy(hs, ARG(10), sizeof(History));
+  if ((void*)comp != ARG(11)) memcpy(comp, ARG(11), sizeof(double)*2*NQ);
+  nw->hs = *hs;
+  long stats[2] = {0, 0};
+  double rn = 0.0;
+  const int result = step(nw, &tb, options[0], tol, options[1], t0, h, q0, p0, start, comp, k, q1, p1, l1, &rn, stats);
+  if (result) {   /* not kept: the start point, so that what follows stays finite */
+    memcpy(q1, q0, sizeof(double)*NQ); memcpy(p1, p0, sizeof(double)*NQ); memcpy(l1, start, sizeof(double)*NM);
+    memset(V, 0, sizeof(double)*S*NQ); memset(W, 0, sizeof(double)*S*NQ); memset(Lm, 0, sizeof(double)*S*NM);
+  } else {
+    memcpy(V, nw->hs.Vh, sizeof(double)*S*NQ); memcpy(W, nw->hs.Wh, sizeof(double)*S*NQ);
+    memcpy(Lm, nw->hs.Lh, sizeof(double)*S*NM);
+  }
+  model_lambda(t0 + h, q1, p1, k, hidden);
+  *hs = nw->hs;
+  ints[0] = result; ints[1] = (int)stats[0]; ints[2] = (int)stats[1];
+  *res = rn;
+  return NULL;
+}
 """
+
+
+def _parameters(names, args, dtype):
+    """The C program's ``k``: the model's parameters from ``args`` in its order (one zero when none)."""
+    return jnp.stack([jnp.asarray(args[name], dtype) for name in names] or [jnp.zeros((), dtype)])
 
 
 class NativeDoublingState(NamedTuple):
@@ -188,7 +245,7 @@ class NativeDoubling(StepDoubling):
             state = self.init(problem, t0, q0, p0, lam0, args, h)
         dtype = q0.dtype
         n, m, s = q0.shape[-1], lam0.shape[-1], self.stages
-        k = jnp.stack([jnp.asarray(args[name], dtype) for name in self.parameters] or [jnp.zeros((), dtype)])
+        k = _parameters(self.parameters, args, dtype)
         out = jax.ShapeDtypeStruct
         shapes = [out((n,), dtype), out((n,), dtype), out((m,), dtype), out((2 * n,), dtype), out((3, 2 * n), dtype),
                   out((4,), jnp.int32), out((3,), dtype), out((2, s, n), dtype), out((2, s, n), dtype),
@@ -217,3 +274,92 @@ class NativeDoubling(StepDoubling):
         info = StepInfo(ints[0], ints[1], reals[0], ints[2], reals[2], jnp.asarray(False), error, dense,
                         jnp.where(whole_failed, 0.5, RETRY_FACTOR).astype(dtype), share, resolved)
         return q1, p1, lam1, info, NativeDoublingState(newton, history, compensation, monitor)
+
+
+class NativeStepState(NamedTuple):
+    """What the loop carries for :class:`NativeStep` between steps (the roles of
+    :class:`~lobattodae._stepper.StepperState`'s fields)."""
+
+    newton: jax.Array  # (step_newton_doubles,): Newton's matrix, kept from every attempt
+    history: jax.Array  # (step_history_doubles,): the predictor's history
+    compensation: jax.Array  # (2n,)
+    lam_hidden: jax.Array  # (m,): λ(t_n, q_n, p_n), from the hidden constraint
+    resync: jax.Array  # bool: the next step starts from lam_hidden (lam_start="auto")
+    monitor: LamMonitor
+
+
+@dataclass(frozen=True)
+class NativeStep:
+    """:class:`~lobattodae.LobattoIIIAIIIB`'s single steps as the loop takes them under its other
+    controllers (constant steps, :class:`~lobattodae.ReversibleStepSize`, the embedded estimate of
+    :class:`~lobattodae.PIController`), each one call into a model's native program; the
+    multiplier policy, the λ drift monitor, the dense output and the embedded estimate are the
+    method's own (:meth:`~lobattodae.LobattoIIIAIIIB.start_multiplier`, ``_watch``, ``_error_estimate``)
+    around the call. Made by :meth:`NativeIntegrator.doubling
+    <lobattodae.mechanics.NativeIntegrator.doubling>`'s sibling ``single``."""
+
+    method: Any
+    target: str = ""
+    parameters: tuple = ()
+    sizes: tuple = (0, 0)
+    pieces = 1
+
+    @property
+    def stages(self) -> int:
+        return self.method.stages
+
+    @property
+    def pair(self):
+        return self.method.pair
+
+    @property
+    def lam_start(self) -> str:
+        return self.method.lam_start
+
+    def order(self) -> dict[str, int]:
+        return self.method.order()
+
+    def init(self, problem, t0, q0, p0, lam0, args=None, h=None, lam_hidden=None) -> NativeStepState:
+        dtype = jnp.asarray(q0).dtype
+        n = jnp.shape(q0)[-1]
+        if lam_hidden is None:
+            lam_hidden = consistent_lambda(problem, jnp.asarray(t0, dtype), jnp.asarray(q0, dtype),
+                                           jnp.asarray(p0, dtype), jnp.asarray(lam0, dtype), args, iterations=1)
+        return NativeStepState(jnp.zeros((self.sizes[0],), dtype), jnp.zeros((self.sizes[1],), dtype),
+                               jnp.zeros((2 * n,), dtype), jnp.asarray(lam_hidden, dtype), jnp.asarray(False),
+                               _fresh_monitor(dtype, jnp.asarray(0, jnp.int32)))
+
+    def after_rejection(self, kept, new: NativeStepState, old: NativeStepState) -> NativeStepState:
+        """Newton's matrix from the attempt, whatever became of it; the rest from before a rejected one."""
+        rest = jax.tree_util.tree_map(lambda x, y: jnp.where(kept, x, y), new._replace(newton=None),
+                                      old._replace(newton=None))
+        return rest._replace(newton=new.newton)
+
+    def step(self, problem, t0, q0, p0, lam0, h, args=None, state: NativeStepState | None = None):
+        """A step as :meth:`~lobattodae.LobattoIIIAIIIB.step` takes it, in one native call."""
+        t0, q0, p0, lam0, h = as_step_arrays(t0, q0, p0, lam0, h)
+        if state is None:
+            state = self.init(problem, t0, q0, p0, lam0, args, h)
+        dtype = q0.dtype
+        n, m, s = q0.shape[-1], lam0.shape[-1], self.stages
+        start = self.method.start_multiplier(lam0, state)
+        out = jax.ShapeDtypeStruct
+        shapes = [out((n,), dtype), out((n,), dtype), out((m,), dtype), out((m,), dtype), out((3,), jnp.int32),
+                  out((), dtype), out((s, n), dtype), out((s, n), dtype), out((s, m), dtype),
+                  out(state.newton.shape, dtype), out(state.history.shape, dtype), out((2 * n,), dtype)]
+        call = jax.ffi.ffi_call(self.target, shapes, vmap_method="sequential",
+                                input_output_aliases={9: 9, 10: 10, 11: 11})
+        options = jnp.asarray([self.method._use_extrapolation, self.method.max_iterations], jnp.int32)
+        stop = jax.lax.stop_gradient
+        q1, p1, lam1, lam_hidden, ints, residual, V, W, Lam, newton, history, compensation = call(
+            stop(t0), stop(h), stop(q0), stop(p0), stop(start), stop(_parameters(self.parameters, args, dtype)),
+            options, jnp.asarray(self.method.tol, dtype), jnp.asarray(tableau_array(self.pair), dtype), state.newton,
+            state.history, state.compensation)
+        drift = jnp.max(jnp.abs(lam1 - lam_hidden))
+        monitor, excursion = self.method._watch(state.monitor, drift, lam1, state.resync)
+        new_state = NativeStepState(newton, history, compensation, lam_hidden,
+                                    jnp.logical_and(excursion, self.lam_start == "auto"), monitor)
+        error = self.method._error_estimate(se.StageParams(t0, h, q0, p0, start, args), se.Stages(None, None, Lam, V, W))
+        info = StepInfo(ints[0], ints[1], residual, ints[2], drift, state.resync, error,
+                        one_piece(t0, h, q0, p0, V, W, Lam), jnp.asarray(RETRY_FACTOR, dtype))
+        return q1, p1, lam1, info, new_state

@@ -1,4 +1,4 @@
-"""Error-controlled steps natively (``lobattodae.mechanics._native_doubling``): each attempt of
+"""Error-controlled steps natively (``lobattodae.mechanics._native_loop``): each attempt of
 step doubling one call into the model's C inside ``lobattodae.solve``'s loop, against the JAX
 path's attempts on the same models."""
 
@@ -152,16 +152,59 @@ def test_a_checkpointed_run_resumes_to_the_same_numbers(sleigh, tmp_path):
     np.testing.assert_array_equal(resumed.q, whole.q)
 
 
+# -- single steps: the loop's other controllers ----------------------------------------------------------
+def test_constant_steps_in_the_loop_take_the_jax_path_s_steps(sleigh):
+    """n_steps with t_eval (rows interpolated on the steps' dense output) and a terminal event: the
+    loop's constant steps, each one native call: every row equal to the JAX path's to round-off,
+    the λ policy's re-synchronisations at the same steps, the event at the same time; and a plain
+    constant run through the loop equals the whole run in C."""
+    model, ex, args = sleigh
+    times = np.linspace(0.0, 50.0, 11)
+
+    def heading(t, q, p, args):
+        return q[2] - 0.5
+
+    heading.terminal = True
+    options = dict(lam0=ex.lam0, args=args, n_steps=1000, t_eval=times)
+    jax_sol = L.solve(model.problem, L.LobattoIIIAIIIB(stages=4), (0.0, 50.0), ex.q0, ex.p0, **options)
+    native_sol = model.native(4).solve((0.0, 50.0), ex.q0, ex.p0, **options)
+    assert native_sol.success and native_sol.stats["lam_excursions"] >= 1  # "auto" re-synchronised
+    assert {k: native_sol.stats[k] for k in ("n_steps", "lam_resets", "lam_excursions")} == \
+        {k: jax_sol.stats[k] for k in ("n_steps", "lam_resets", "lam_excursions")}
+    np.testing.assert_array_equal(native_sol.t, times)
+    np.testing.assert_allclose(native_sol.q, jax_sol.q, rtol=0, atol=1e-12 * (1 + np.abs(jax_sol.q).max()))
+    np.testing.assert_allclose(native_sol.p, jax_sol.p, rtol=0, atol=1e-12 * (1 + np.abs(jax_sol.p).max()))
+    ev_jax = L.solve(model.problem, L.LobattoIIIAIIIB(stages=4), (0.0, 5.0), ex.q0, ex.p0, lam0=ex.lam0, args=args,
+                     n_steps=100, events=heading)
+    ev_native = model.native(4).solve((0.0, 5.0), ex.q0, ex.p0, lam0=ex.lam0, args=args, n_steps=100,
+                                      events=heading)
+    assert ev_native.result == Result.EVENT and abs(ev_native.t_events[0][0] - ev_jax.t_events[0][0]) < 1e-12
+    # the loop's native steps against the whole run in C: the same program, the same rows
+    loop = L.solve(model.problem, model.native(4), (0.0, 50.0), ex.q0, ex.p0, lam0=ex.lam0, args=args, n_steps=1000)
+    whole = model.native(4).solve((0.0, 50.0), ex.q0, ex.p0, lam0=ex.lam0, args=args, n_steps=1000)
+    np.testing.assert_allclose(loop.q, whole.q, rtol=0, atol=1e-13 * (1 + np.abs(whole.q).max()))
+    assert loop.stats["lam_resets"] == whole.stats["lam_resets"]
+
+
+@pytest.mark.parametrize("controller", [L.ReversibleStepSize(), L.PIController(estimate="embedded")],
+                         ids=["reversible", "embedded"])
+def test_the_other_controllers_take_native_single_steps(disk, controller):
+    """Reversible control and the embedded estimate run the method's single steps: natively the
+    same attempts as on the JAX path (the embedded estimate computed from the native stages)."""
+    model, ex, args = disk
+    options = dict(controller=controller, t_eval=np.linspace(0.0, 10.0, 6))
+    if isinstance(controller, L.ReversibleStepSize):
+        options["first_step"] = 0.1
+    jax_sol, native_sol = _both(model, 5, "auto", (0.0, 10.0), ex.q0, ex.p0, args, **options)
+    assert native_sol.success and type(native_sol.method).__name__ == "NativeStep"
+    counts = ("n_steps", "n_rejected", "lam_excursions")
+    assert {k: native_sol.stats[k] for k in counts} == {k: jax_sol.stats[k] for k in counts}
+    np.testing.assert_allclose(native_sol.q, jax_sol.q, rtol=0, atol=1e-9)
+
+
 def test_what_the_native_attempt_refuses_is_named(sleigh, disk):
     model, ex, args = sleigh
     native = model.native(3)
-    with pytest.raises(LobattoDAEInputError, match="not ConstantStepSize"):
-        L.solve(model.problem, native, (0.0, 1.0), ex.q0, ex.p0, args=args, n_steps=10)
-    with pytest.raises(LobattoDAEInputError, match="error-controlled steps"):
-        L.solve(model.problem, native, (0.0, 1.0), ex.q0, ex.p0, args=args, controller=L.ReversibleStepSize())
-    with pytest.raises(LobattoDAEInputError, match="error-controlled steps"):
-        L.solve(model.problem, native, (0.0, 1.0), ex.q0, ex.p0, args=args,
-                controller=L.PIController(estimate="embedded"))
     for pure in (lambda: L.integrate_adaptive(model.problem, native, (0.0, 1.0), ex.q0, ex.p0, ex.lam0, args),
                  lambda: L.integrate(model.problem, native, 0.0, 0.1, 10, ex.q0, ex.p0, ex.lam0, args),
                  lambda: L.ensemble(model.problem, native, np.stack([ex.q0] * 2), np.stack([ex.p0] * 2),
@@ -171,7 +214,7 @@ def test_what_the_native_attempt_refuses_is_named(sleigh, disk):
     with pytest.raises(LobattoDAEInputError, match="pass its problem"):
         disk_model, disk_ex, disk_args = disk
         L.solve(disk_model.problem, native, (0.0, 1.0), disk_ex.q0, disk_ex.p0, args=disk_args)
-    with pytest.raises(LobattoDAEInputError, match="not rtol, t_eval"):
-        native.solve((0.0, 1.0), ex.q0, ex.p0, args=args, n_steps=10, rtol=1e-6, t_eval=[0.5])
+    with pytest.raises(LobattoDAEInputError, match="rtol"):  # solve's own refusal of both kinds of steps
+        native.solve((0.0, 1.0), ex.q0, ex.p0, args=args, n_steps=10, rtol=1e-6)
     with pytest.raises(TypeError, match="model.native"):
         L.solve(model.problem, "LobattoIIIAIIIB", (0.0, 1.0), ex.q0, ex.p0, args=args)
