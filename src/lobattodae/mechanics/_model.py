@@ -443,8 +443,8 @@ class LagrangianModel:
         time per step than :func:`lobattodae.integrate` on a CPU, with results equal to round-off
         (``benchmarks/RESULTS.md``, 2026-11-29 11:15); error-controlled steps run in
         :func:`lobattodae.solve`'s loop, each attempt one native call, with every option of
-        ``solve`` (events, ``t_eval``, dense output) and the same steps, 1.9–2.8 × less time
-        (2026-11-29, 14:00). Forward only, on the CPU: the JAX path stays the one for ``jax.grad``,
+        ``solve`` (events, ``t_eval``, dense output) and the same steps, 2.1–3.8 × less time
+        (2026-11-29, 14:45). Forward only, on the CPU: the JAX path stays the one for ``jax.grad``,
         ``vmap``, ensembles and GPUs. Holonomic constraints are kept by the library's projection
         after each step. One integrator is kept per (stages, options).
 

@@ -12,8 +12,9 @@ costs XLA:CPU's overhead per kernel (hundreds of tiny kernels per step, about 57
 ``lobattodae.integrate`` (sleigh, falling disk, s = 3…6; the Whipple bicycle 3.7 ×; 1.24 × the
 hand-written C limit) with results equal to round-off, and a first result in under a second for
 the falling disk, ten seconds for the bicycle (``benchmarks/native_step.py``,
-``benchmarks/RESULTS.md``, 2026-11-29 11:15); error-controlled runs 1.9–2.8 × less time than
-``lobattodae.solve`` with the same steps (2026-11-29, 14:00). The JAX path stays the one for
+``benchmarks/RESULTS.md``, 2026-11-29 11:15; with the LU by columns 2.5–6.0 ×, the bicycle
+4.1 ×, 14:45); error-controlled runs 2.1–3.8 × less time than ``lobattodae.solve`` with the same
+steps (2026-11-29, 14:45). The JAX path stays the one for
 ``jax.grad``, ``vmap``, ensembles and GPUs: this is a forward integrator on the CPU. A
 constant-step run keeps no state outside its call and releases Python's global lock, so runs in
 threads use several CPUs.
