@@ -201,6 +201,16 @@ def _parameters(names, args, dtype):
     return jnp.stack([jnp.asarray(args[name], dtype) for name in names] or [jnp.zeros((), dtype)])
 
 
+def _after_rejection(kept, new, old):
+    """The state the next attempt starts from: ``new``'s Newton matrices (a factorisation stays an
+    approximation of the Jacobian near the same point, as :meth:`LobattoIIIAIIIB.after_rejection
+    <lobattodae.LobattoIIIAIIIB.after_rejection>` keeps it), everything else ``new`` where the
+    attempt was ``kept``, else ``old``."""
+    rest = jax.tree_util.tree_map(lambda x, y: jnp.where(kept, x, y), new._replace(newton=None),
+                                  old._replace(newton=None))
+    return rest._replace(newton=new.newton)
+
+
 class NativeDoublingState(NamedTuple):
     """What the loop carries for :class:`NativeDoubling` between attempts."""
 
@@ -214,7 +224,7 @@ class NativeDoublingState(NamedTuple):
 class NativeDoubling(StepDoubling):
     """:class:`~lobattodae._doubling.StepDoubling` whose attempt is one call into a model's
     native program (see the module docstring); made by
-    :meth:`NativeIntegrator.stepper <lobattodae.mechanics.NativeIntegrator.stepper>`.
+    :meth:`NativeIntegrator.doubling <lobattodae.mechanics.NativeIntegrator.doubling>`.
 
     ``target`` names the registered FFI handler, ``parameters`` the model's parameters in the
     order of the C program's ``k``, ``sizes`` the doubles of the two state buffers (Newton's
@@ -234,9 +244,7 @@ class NativeDoubling(StepDoubling):
     def after_rejection(self, kept, new: NativeDoublingState, old: NativeDoublingState) -> NativeDoublingState:
         """Newton's matrices from the attempt, whatever became of it; the rest from before a
         rejected one (as :meth:`StepDoubling.after_rejection`)."""
-        rest = jax.tree_util.tree_map(lambda x, y: jnp.where(kept, x, y), new._replace(newton=None),
-                                      old._replace(newton=None))
-        return rest._replace(newton=new.newton)
+        return _after_rejection(kept, new, old)
 
     def step(self, problem, t0, q0, p0, lam0, h, args=None, state: NativeDoublingState | None = None):
         """An attempt as :meth:`StepDoubling.step` makes it, in one native call."""
@@ -295,8 +303,8 @@ class NativeStep:
     :class:`~lobattodae.PIController`), each one call into a model's native program; the
     multiplier policy, the λ drift monitor, the dense output and the embedded estimate are the
     method's own (:meth:`~lobattodae.LobattoIIIAIIIB.start_multiplier`, ``_watch``, ``_error_estimate``)
-    around the call. Made by :meth:`NativeIntegrator.doubling
-    <lobattodae.mechanics.NativeIntegrator.doubling>`'s sibling ``single``."""
+    around the call. Made by :meth:`NativeIntegrator.single
+    <lobattodae.mechanics.NativeIntegrator.single>`."""
 
     method: Any
     target: str = ""
@@ -331,9 +339,7 @@ class NativeStep:
 
     def after_rejection(self, kept, new: NativeStepState, old: NativeStepState) -> NativeStepState:
         """Newton's matrix from the attempt, whatever became of it; the rest from before a rejected one."""
-        rest = jax.tree_util.tree_map(lambda x, y: jnp.where(kept, x, y), new._replace(newton=None),
-                                      old._replace(newton=None))
-        return rest._replace(newton=new.newton)
+        return _after_rejection(kept, new, old)
 
     def step(self, problem, t0, q0, p0, lam0, h, args=None, state: NativeStepState | None = None):
         """A step as :meth:`~lobattodae.LobattoIIIAIIIB.step` takes it, in one native call."""
