@@ -90,7 +90,6 @@ import numpy as np
 
 from ._controllers import PIController
 from ._dense import joined
-from ._errors import LobattoDAEInputError
 from ._newton import JacobianCache
 from ._problem import vector_field
 from ._results import Result

@@ -363,7 +363,7 @@ def ensemble(problem, method, q0, p0, lam0, args=None, *, batch_args=False, t0=N
         Bad options: both or neither of ``n_steps`` and ``t_span``, options of the other mode,
         options :func:`~lobattodae.solve` refuses, ``block_size``, ``save``, ``devices``,
         ``if_exists``, existing files (:class:`EnsembleFileError` for files that are not
-        regular files).
+        regular files), a model's ``NativeIntegrator`` as ``method`` (pass its ``method``).
 
     Warns
     -----

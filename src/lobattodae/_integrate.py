@@ -165,7 +165,9 @@ def integrate(problem, method: LobattoIIIAIIIB, t0, h, n_steps: int, q0, p0, lam
     ------
     LobattoDAEInputError
         ``n_steps`` is not a positive integer, or ``checkpoints`` is not ``"auto"``, None or
-        a positive integer.
+        a positive integer; ``method`` is a model's ``NativeIntegrator`` (pass its ``method``).
+    TypeError
+        ``method`` is not a :class:`LobattoIIIAIIIB`.
     """
     check_method(method)
     check_count("n_steps", n_steps)
@@ -370,7 +372,8 @@ def integrate_adaptive(problem, method: LobattoIIIAIIIB, t_span, q0, p0, lam0, a
         ``max_steps`` (a positive integer up to ``2·10⁷``), ``controller``, ``checkpoints``,
         ``differentiable`` (a bool) and ``t_eval_rows``; where ``t_span`` is concrete (not
         traced under ``jit``/``vmap``) also ``t_span``, and ``t_eval`` and ``rtol``, ``atol``,
-        ``first_step``, ``max_step`` where they are concrete too.
+        ``first_step``, ``max_step`` where they are concrete too; a model's ``NativeIntegrator``
+        as ``method`` (pass its ``method``).
     """
     _check_options(t_span, rtol, atol, first_step, max_step, controller, max_steps, t_eval)
     if not isinstance(differentiable, bool):

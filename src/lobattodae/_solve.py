@@ -86,11 +86,11 @@ def solve(
         compiles the loop that records them, once for every later ``t_eval`` and
         ``dense_output`` (``events`` and ``t_eval_rows="project"`` compile loops of their own).
     method : LobattoIIIAIIIB or NativeIntegrator
-        The method; or, for a model of :mod:`lobattodae.mechanics` and error-controlled steps,
-        its native program ``model.native(stages)`` (``problem`` then ``model.problem``): each
-        step attempt is one call into compiled C, everything else (controller, events,
-        ``t_eval``, dense output, checkpoints) as with the method, the same steps to round-off
-        (:meth:`~lobattodae.mechanics.NativeIntegrator.solve`).
+        The method; or, for a model of :mod:`lobattodae.mechanics`, its native program
+        ``model.native(stages)`` (``problem`` then ``model.problem``): each step (under error
+        control each attempt of step doubling) is one call into compiled C, everything else
+        (controller, events, ``t_eval``, dense output, checkpoints) as with the method, the
+        same steps to round-off (:meth:`~lobattodae.mechanics.NativeIntegrator.solve`).
     t_span : (float, float)
         ``(t0, t1)``; ``t1 < t0`` integrates backwards.
     q0, p0 : array_like, shape (n,)
