@@ -97,7 +97,7 @@ from ._stepper import History, LobattoIIIAIIIB, StepInfo, StepperState, as_step_
 from ._tableau import LobattoPair
 from ._validate import check_method
 
-__all__ = ["DoublingState", "StepDoubling", "for_error_control"]
+__all__ = ["DoublingState", "MethodSteps", "StepDoubling", "for_error_control"]
 
 #: Differences of the two results up to NOISE Newton tolerances, ``NOISE·tol·(1 + |y|)``, are
 #: not counted as error: each result is only solved to that tolerance, and an error test per
@@ -132,12 +132,11 @@ def _where(pred, a, b):
 
 
 @dataclass(frozen=True)
-class StepDoubling:
-    """The method as error-controlled runs take its steps: two half steps kept, the whole step
-    compared (Richardson's estimate of the local error; see the module docstring)."""
+class MethodSteps:
+    """A stepper that takes ``method``'s steps its own way: its stages, tableaus, multiplier
+    policy and orders are the method's."""
 
     method: LobattoIIIAIIIB
-    pieces = 2
 
     @property
     def stages(self) -> int:
@@ -153,6 +152,14 @@ class StepDoubling:
 
     def order(self) -> dict[str, int]:
         return self.method.order()
+
+
+@dataclass(frozen=True)
+class StepDoubling(MethodSteps):
+    """The method as error-controlled runs take its steps: two half steps kept, the whole step
+    compared (Richardson's estimate of the local error; see the module docstring)."""
+
+    pieces = 2
 
     @property
     def richardson(self) -> float:

@@ -29,14 +29,14 @@ it runs on the CPU, and under ``vmap`` one lane after the other.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._dense import joined, one_piece
-from .._doubling import NOISE, StepDoubling
+from .._doubling import NOISE, MethodSteps, StepDoubling
 from .._results import Result
 from .. import _stage_equations as se
 from .._problem import consistent_lambda
@@ -66,6 +66,19 @@ static double max_abs_diff(const double *a, const double *b, int n) {
   double d = 0.0; for (int j = 0; j < n; j++) d = fmax(d, fabs(a[j] - b[j])); return d;
 }
 
+/* XLA's handshake: a call that asks for the handler's metadata (the FFI API version it was built
+   with) is answered here, and only the execution stage runs the handler. */
+static int executing(XLA_FFI_CallFrame* frame) {
+  if (frame->extension_start && frame->extension_start->type == XLA_FFI_Extension_Metadata) {
+    XLA_FFI_Metadata_Extension* ext = (XLA_FFI_Metadata_Extension*)frame->extension_start;
+    ext->metadata->api_version.major_version = XLA_FFI_API_MAJOR;
+    ext->metadata->api_version.minor_version = XLA_FFI_API_MINOR;
+    ext->metadata->traits = 0;
+    return 0;
+  }
+  return frame->stage == XLA_FFI_ExecutionStage_EXECUTE;
+}
+
 #define ARG(i) (((XLA_FFI_Buffer*)frame->args.args[i])->data)
 #define RET(i) (((XLA_FFI_Buffer*)frame->rets.rets[i])->data)
 
@@ -82,14 +95,7 @@ static double max_abs_diff(const double *a, const double *b, int n) {
    half steps' drifts ‖λ − λ(t, q, p)‖∞), the half steps' stage slopes V, W and multipliers Λ (2, S, ·),
    (q, p, λ)_{1/2}, and the new Newton matrices, histories and compensation (aliased to their arguments). */
 XLA_FFI_Error* lobattodae_attempt(XLA_FFI_CallFrame* frame) {
-  if (frame->extension_start && frame->extension_start->type == XLA_FFI_Extension_Metadata) {
-    XLA_FFI_Metadata_Extension* ext = (XLA_FFI_Metadata_Extension*)frame->extension_start;
-    ext->metadata->api_version.major_version = XLA_FFI_API_MAJOR;
-    ext->metadata->api_version.minor_version = XLA_FFI_API_MINOR;
-    ext->metadata->traits = 0;
-    return NULL;
-  }
-  if (frame->stage != XLA_FFI_ExecutionStage_EXECUTE) return NULL;
+  if (!executing(frame)) return NULL;
   const double t0 = *(const double*)ARG(0), h = *(const double*)ARG(1);
   const double *q0 = ARG(2), *p0 = ARG(3), *lam0 = ARG(4), *k = ARG(5);
   const int *options = ARG(6);
@@ -157,14 +163,7 @@ XLA_FFI_Error* lobattodae_attempt(XLA_FFI_CallFrame* frame) {
    Newton matrices), the last residual norm, the stage slopes V, W and multipliers Λ, and the new
    Newton matrix, history and compensation (aliased to their arguments). */
 XLA_FFI_Error* lobattodae_step(XLA_FFI_CallFrame* frame) {
-  if (frame->extension_start && frame->extension_start->type == XLA_FFI_Extension_Metadata) {
-    XLA_FFI_Metadata_Extension* ext = (XLA_FFI_Metadata_Extension*)frame->extension_start;
-    ext->metadata->api_version.major_version = XLA_FFI_API_MAJOR;
-    ext->metadata->api_version.minor_version = XLA_FFI_API_MINOR;
-    ext->metadata->traits = 0;
-    return NULL;
-  }
-  if (frame->stage != XLA_FFI_ExecutionStage_EXECUTE) return NULL;
+  if (!executing(frame)) return NULL;
   const double t0 = *(const double*)ARG(0), h = *(const double*)ARG(1);
   const double *q0 = ARG(2), *p0 = ARG(3), *start = ARG(4), *k = ARG(5);
   const int *options = ARG(6);
@@ -297,7 +296,7 @@ class NativeStepState(NamedTuple):
 
 
 @dataclass(frozen=True)
-class NativeStep:
+class NativeStep(MethodSteps):
     """:class:`~lobattodae.LobattoIIIAIIIB`'s single steps as the loop takes them under its other
     controllers (constant steps, :class:`~lobattodae.ReversibleStepSize`, the embedded estimate of
     :class:`~lobattodae.PIController`), each one call into a model's native program; the
@@ -306,26 +305,10 @@ class NativeStep:
     around the call. Made by :meth:`NativeIntegrator.single
     <lobattodae.mechanics.NativeIntegrator.single>`."""
 
-    method: Any
     target: str = ""
     parameters: tuple = ()
     sizes: tuple = (0, 0)
     pieces = 1
-
-    @property
-    def stages(self) -> int:
-        return self.method.stages
-
-    @property
-    def pair(self):
-        return self.method.pair
-
-    @property
-    def lam_start(self) -> str:
-        return self.method.lam_start
-
-    def order(self) -> dict[str, int]:
-        return self.method.order()
 
     def init(self, problem, t0, q0, p0, lam0, args=None, h=None, lam_hidden=None) -> NativeStepState:
         dtype = jnp.asarray(q0).dtype
