@@ -208,6 +208,15 @@ def test_constant_steps_in_the_loop_take_the_jax_path_s_steps(sleigh):
     assert loop.stats["lam_resets"] == whole.stats["lam_resets"]
 
 
+def test_a_failed_constant_step_is_recovered_natively_as_on_the_jax_path(disk):
+    """max_recoveries: the falling disk's steps of 4 fail and are retried as substeps (fresh
+    native steppers over the sub-grid), with the JAX path's count and end point."""
+    model, ex, args = disk
+    jax_sol, native_sol = _both(model, 3, "auto", (0.0, 20.0), ex.q0, ex.p0, args, n_steps=5, max_recoveries=5)
+    assert native_sol.success and native_sol.stats["recoveries"] == jax_sol.stats["recoveries"] >= 1
+    np.testing.assert_allclose(native_sol.q[-1], jax_sol.q[-1], rtol=0, atol=1e-10)
+
+
 @pytest.mark.parametrize("controller", [L.ReversibleStepSize(), L.PIController(estimate="embedded")],
                          ids=["reversible", "embedded"])
 def test_the_other_controllers_take_native_single_steps(disk, controller):
