@@ -141,13 +141,27 @@ def sweep(label, settings, call, post, warm, cfg, budget, setting="tol") -> dict
 
 
 # ------------------------------------------------------------------------- the solvers
-def lobattodae_sweep(label, ex, T, q_ref, cfg, budget, s, settings, options, warm, setting="tol", **fixed) -> dict:
+def twin(name, ex):
+    """The problem's ``lobattodae.mechanics`` twin and its ``args`` (the example's parameters)."""
+    from lobattodae import mechanics
+
+    model = getattr(mechanics.systems, TWINS[name])()
+    return model, model.args(**ex.args._asdict())
+
+
+def lobattodae_sweep(label, ex, T, q_ref, cfg, budget, s, settings, options, warm, setting="tol", *, native=None,
+                     **fixed) -> dict:
     """``solve`` with ``options(x)`` for each setting x (and ``fixed``), ``save_every="final"``,
-    error of q(T); ``solve`` with ``options(warm)`` compiles first."""
-    method = L.LobattoIIIAIIIB(stages=s)
+    error of q(T); ``solve`` with ``options(warm)`` compiles first. ``native``: the problem's name,
+    whose ``lobattodae.mechanics`` twin is solved instead, by ``model.native(s)`` (each step or
+    attempt one native call)."""
+    problem, method, args = ex.problem, L.LobattoIIIAIIIB(stages=s), ex.args
+    if native is not None:
+        model, args = twin(native, ex)
+        problem, method = model.problem, model.native(s)
 
     def call(x):
-        return L.solve(ex.problem, method, (0.0, T), ex.q0, ex.p0, args=ex.args, lam0=ex.lam0, save_every="final",
+        return L.solve(problem, method, (0.0, T), ex.q0, ex.p0, args=args, lam0=ex.lam0, save_every="final",
                        throw=False, **options(x), **fixed)
 
     def post(sol):
@@ -156,34 +170,11 @@ def lobattodae_sweep(label, ex, T, q_ref, cfg, budget, s, settings, options, war
     return sweep(label, settings, call, post, lambda: call(warm), cfg, budget, setting)
 
 
-def native_adaptive_sweep(label, name, ex, T, q_ref, cfg, budget, s) -> dict:
-    """The problem's ``lobattodae.mechanics`` twin with error control natively:
-    ``lobattodae.solve(model.problem, model.native(s), ...)`` as the adaptive sweep calls ``solve``
-    (each attempt of step doubling one native call; the same tolerances)."""
-    from lobattodae import mechanics
-
-    model = getattr(mechanics.systems, TWINS[name])()
-    args = model.args(**ex.args._asdict())
-    native = model.native(s)
-
-    def call(tol):
-        return L.solve(model.problem, native, (0.0, T), ex.q0, ex.p0, args=args, lam0=ex.lam0, save_every="final",
-                       throw=False, rtol=tol, atol=tol)
-
-    def post(sol):
-        return solution_point(sol, lambda sol: np.max(np.abs(np.asarray(sol.q[-1]) - q_ref)))
-
-    return sweep(label, cfg["lob_tols"], call, post, lambda: call(1e-6), cfg, budget)
-
-
 def native_sweep(label, name, ex, T, q_ref, cfg, budget, s) -> dict:
     """The problem's ``lobattodae.mechanics`` twin by its native step (generated C, constant
     steps, ``n_steps`` = N of the constant sweep): the whole ``integrate`` call is timed; max ‖φ‖
     over its step points by the model's ``constraint_residual`` (untimed)."""
-    from lobattodae import mechanics
-
-    model = getattr(mechanics.systems, TWINS[name])()
-    args = model.args(**ex.args._asdict())
+    model, args = twin(name, ex)
     native = model.native(s)
 
     def call(n):
@@ -290,8 +281,9 @@ def run_problem(name: str, cfg: dict, budget: float) -> dict:
     for s in cfg["const_stages"]:
         runs[f"native s={s}"] = native_sweep(f"lobattodae native s={s}", name, ex, T, q_ref, cfg, budget, s)
     for s in cfg["native_stages"]:
-        runs[f"native adaptive s={s}"] = native_adaptive_sweep(f"lobattodae native adaptive s={s}", name, ex, T,
-                                                               q_ref, cfg, budget, s)
+        runs[f"native adaptive s={s}"] = lobattodae_sweep(f"lobattodae native adaptive s={s}", ex, T, q_ref, cfg,
+                                                          budget, s, cfg["lob_tols"],
+                                                          lambda tol: {"rtol": tol, "atol": tol}, 1e-6, native=name)
     for s in cfg["rev_stages"] if name in REVERSIBLE else ():
         # the symmetric scheme's control (default density ‖(f, g)‖); first_step sets ε = h₀ σ(y₀)
         runs[f"reversible s={s}"] = lobattodae_sweep(f"lobattodae reversible s={s}", ex, T, q_ref, cfg, budget, s,
