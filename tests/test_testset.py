@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import lobattodae as L
+from lobattodae.mechanics import _native
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
@@ -118,6 +119,33 @@ def test_andrews_published_reference_agrees_with_scipy():
     q_ref, qdot_ref = np.array(andrews.Q_REF), np.array(andrews.QDOT_REF)
     assert np.max(np.abs(q - q_ref) / (1 + np.abs(q_ref))) < PROBLEMS["andrews"].ref_accuracy
     assert np.max(np.abs(qdot - qdot_ref) / (1 + np.abs(qdot_ref))) < 5e-8
+
+
+def test_andrews_lagrangian_twin_has_the_published_equations():
+    """The mechanism written with lobattodae.mechanics (M, the spring's potential, the torque; the
+    Coriolis terms left to Lagrange's equations) has the published f and g at random states (its λ
+    the test set's with the opposite sign), and natively (generated C, constant steps) it ends where
+    the test set's problem does, within the fast test's bound of the published reference."""
+    mdl, s = andrews.model(), andrews.build()
+    args = mdl.args(**andrews.PARAMS)
+    assert (mdl.n, mdl.m, mdl.n_holonomic) == (7, 6, 6)
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        q = jnp.asarray(np.array(andrews.Q0) + 0.5 * rng.standard_normal(7))
+        p = jnp.asarray(andrews.mass_matrix(np.asarray(q)) @ (100.0 * rng.standard_normal(7)))
+        lam = jnp.asarray(50.0 * rng.standard_normal(6))
+        np.testing.assert_allclose(mdl.problem.f(0.0, q, p, args), s.problem.f(0.0, q, p, None), rtol=1e-13, atol=1e-12)
+        g_twin, g_set = mdl.problem.g(0.0, q, p, -lam, args), s.problem.g(0.0, q, p, lam, None)
+        np.testing.assert_allclose(g_twin, g_set, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(g_set))))
+        np.testing.assert_allclose(mdl.problem.position_constraint(0.0, q, args), andrews.constraints(q), atol=1e-16)
+    if _native.c_compiler() is None:
+        pytest.skip("no C compiler on this machine: the native run is not tried")
+    entry = PROBLEMS["andrews"]
+    native = mdl.native(entry.test.stages).solve(s.t_span, s.q0, s.p0, n_steps=entry.test.n_steps, args=args)
+    ours = L.solve(s.problem, L.LobattoIIIAIIIB(stages=entry.test.stages), s.t_span, s.q0, s.p0,
+                   n_steps=entry.test.n_steps)
+    assert error(entry, np.asarray(native.t), np.asarray(native.q), np.asarray(native.p)) < entry.test.bound
+    np.testing.assert_allclose(native.q[-1], ours.q[-1], rtol=0, atol=1e-12 * (1 + float(jnp.max(jnp.abs(ours.q[-1])))))
 
 
 # ----------------------------------------------------------------------------- car axis

@@ -92,9 +92,28 @@ LAM_REF = (
 
 
 # ----------------------------------------------------------------------------- equations
+def _xp(q):
+    """The array module of q's entries: SymPy for symbols, ``jax.numpy`` for JAX arrays, else NumPy."""
+    if isinstance(q, jax.Array):
+        return jnp
+    if isinstance(q, np.ndarray) and q.dtype != object:
+        return np
+    import sympy as sp
+
+    return sp if any(isinstance(x, sp.Basic) for x in q) else np
+
+
+def _stack(rows, xp):
+    """Rows of entries as an array (a SymPy Matrix for SymPy entries)."""
+    if xp.__name__ == "sympy":
+        return xp.Matrix(rows)
+    return xp.stack([xp.stack(r) for r in rows]) if isinstance(rows[0], list) else xp.stack(rows)
+
+
 def mass_matrix(q, P=PARAMS):
-    """M(q) (7×7), test set andrews.f (Hairer & Wanner II, (7.3)); works on NumPy and JAX."""
-    xp = jnp if isinstance(q, jax.Array) else np
+    """M(q) (7×7), test set andrews.f (Hairer & Wanner II, (7.3)); works on NumPy, JAX and
+    SymPy entries (``P`` then maps the parameters' names to symbols)."""
+    xp = _xp(q)
     m1, m2, m4, m5, m6, m7 = P["m1"], P["m2"], P["m4"], P["m5"], P["m6"], P["m7"]
     rr, da, ra, e, ea, zt, zf, fa, u = P["rr"], P["da"], P["ra"], P["e"], P["ea"], P["zt"], P["zf"], P["fa"], P["u"]
     coth, siph, siom = xp.cos(q[1]), xp.sin(q[3]), xp.sin(q[5])
@@ -110,7 +129,7 @@ def mass_matrix(q, P=PARAMS):
     m76 = m6 * ((zf - fa) ** 2 - u * (zf - fa) * siom) + P["i6"]
     m77 = (m6 * ((zf - fa) ** 2 - 2 * u * (zf - fa) * siom + u**2) + m7 * (P["ua"] ** 2 + P["ub"] ** 2)
            + P["i6"] + P["i7"])
-    z = 0.0 * coth
+    z = 0 if xp.__name__ == "sympy" else 0.0 * coth
     rows = [
         [m11, m21, z, z, z, z, z],
         [m21, m22, z, z, z, z, z],
@@ -120,7 +139,7 @@ def mass_matrix(q, P=PARAMS):
         [z, z, z, z, z, m66 + z, m76],
         [z, z, z, z, z, m76, m77],
     ]
-    return xp.stack([xp.stack(r) for r in rows])
+    return _stack(rows, xp)
 
 
 def forces(q, w, P=PARAMS):
@@ -149,25 +168,26 @@ def forces(q, w, P=PARAMS):
 
 def _loop_trig(q):
     """cos and sin of the angles of the loops in g and G: β, β+Θ, γ, Φ+δ, δ, Ω+ε, ε; NumPy for
-    NumPy (also complex) input, else ``jax.numpy``."""
-    xp = jnp if isinstance(q, jax.Array) else np
+    NumPy (also complex) input, ``jax.numpy`` for JAX, SymPy for symbols."""
+    xp = _xp(q)
     return [(xp.cos(a), xp.sin(a)) for a in (q[0], q[0] + q[1], q[2], q[3] + q[4], q[4], q[5] + q[6], q[6])]
 
 
 def constraints(q, P=PARAMS):
-    """g(q) (6,): the three loops closed at the fixed points B and A (test set ``g``)."""
-    xp = jnp if isinstance(q, jax.Array) else np
+    """g(q) (6,): the three loops closed at the fixed points B and A (test set ``g``); NumPy, JAX
+    or SymPy entries, as :func:`mass_matrix`."""
+    xp = _xp(q)
     rr, d, ss, e, zt, zf, u = P["rr"], P["d"], P["ss"], P["e"], P["zt"], P["zf"], P["u"]
     (cobe, sibe), (cobeth, sibeth), (coga, siga), (cophde, siphde), (code, side), (coomep, siomep), (coep, siep) = \
         _loop_trig(q)
-    return xp.stack([
+    return _stack([
         rr * cobe - d * cobeth - ss * siga - P["xb"],
         rr * sibe - d * sibeth + ss * coga - P["yb"],
         rr * cobe - d * cobeth - e * siphde - zt * code - P["xa"],
         rr * sibe - d * sibeth + e * cophde - zt * side - P["ya"],
         rr * cobe - d * cobeth - zf * coomep - u * siep - P["xa"],
         rr * sibe - d * sibeth - zf * siomep + u * coep - P["ya"],
-    ])
+    ], xp)
 
 
 def constraint_jacobian(q, P=PARAMS):
@@ -253,6 +273,39 @@ def build() -> Setup:
                                position_constraint=_psi)
     q0 = np.array(Q0)
     return Setup(problem=problem, q0=q0, p0=np.zeros(7), args=None, t_span=(0.0, T_END))
+
+
+# ----------------------------------------------------------------------------- the Lagrangian twin
+@functools.cache
+def model():
+    """The same mechanism written as a user of :mod:`lobattodae.mechanics` writes it
+    (:func:`~lobattodae.mechanics.from_lagrangian`), built once: the kinetic energy
+    ``½ q'ᵀ M(q) q'`` with the published M (Hairer & Wanner II, (7.3)), the spring's potential
+    ``½ c0 (l − l0)²`` with l the spring's length (its force in f is ``−∂V/∂γ``), the driving
+    torque as the generalized force ``mom`` on β, and the six loop closures g(q) = 0 as holonomic
+    constraints. The velocity-dependent terms of f are not entered: Lagrange's equations derive
+    them from M; that they equal the published ones is checked at random states
+    (``tests/test_testset.py``). Parameters: :data:`PARAMS` (``model.args(**PARAMS)``).
+    Its momenta are ``M(q) q'``, those of :func:`build`, so one reference serves both, and it runs
+    natively (``model().native(s)``: generated C)."""
+    import sympy as sp
+    from sympy.physics.mechanics import dynamicsymbols
+
+    from lobattodae import mechanics
+
+    t = sp.Symbol("t")
+    q = dynamicsymbols("beta theta gamma phi delta omega epsilon")
+    P = {name: sp.Symbol(name, real=True) for name in PARAMS}
+    M = mass_matrix(q, P)
+    qd = sp.Matrix([x.diff(t) for x in q])
+    coga, siga = sp.cos(q[2]), sp.sin(q[2])
+    xd = P["sd"] * coga + P["sc"] * siga + P["xb"]
+    yd = P["sd"] * siga - P["sc"] * coga + P["yb"]
+    length = sp.sqrt((xd - P["xc"]) ** 2 + (yd - P["yc"]) ** 2)
+    lagrangian = (qd.T * M * qd)[0, 0] / 2 - P["c0"] * (length - P["l0"]) ** 2 / 2
+    loops = constraints(q, P)
+    return mechanics.from_lagrangian(lagrangian, q, t, holonomic=list(loops), forces={q[0]: P["mom"]},
+                                     name="Andrews' squeezing mechanism (Lagrangian)", defaults=PARAMS)
 
 
 def _p_ref():
