@@ -18,6 +18,11 @@ Solvers (``lib.baselines``; XLA's CPU pool is one thread for every solver of the
 * **lobattodae** ``solve(problem, LobattoIIIAIIIB(stages=s), t_span, q0, p0, args=...,
   rtol=tol, atol=tol)`` for s = 3, 4, 5, 6, ``save_every="final"`` when the only reference
   time is the end of the interval, else ``t_eval=t_ref``; the whole ``solve`` call is timed.
+* **lobattodae native** (``native s=...``), for the problems that have a ``lobattodae.mechanics``
+  model of their equations (``TestProblem.mechanics``: the four-bar linkage and the rolling disc
+  as converted from SymPy, Andrews' squeezer as its Lagrangian twin): ``solve(model.problem,
+  model.native(s), ...)`` with the same options, each attempt one call into the model's
+  generated C (its compilation, once per model and s, is outside the timings: a warm-up call).
 * **diffrax Dopri8** and **diffrax Kvaerno5** on the index-1 ODE of the problem
   (``lib.odes.testset_ode``), ``PIDController(rtol=tol, atol=tol)`` (default coefficients),
   ``SaveAt(ts=t_ref)``, ``max_steps`` = 10⁶, jitted once per problem and solver.
@@ -32,8 +37,8 @@ Solvers (``lib.baselines``; XLA's CPU pool is one thread for every solver of the
 
 The table: wall time at error 1e-8 on each solver's Pareto front (log time interpolated
 linearly in log error between the two bracketing points; ``lib.sweeps.time_at``), for
-lobattodae the best s, and the ratios ours(best s)/Dopri8, /DOP853, /Radau (< 1: ours is
-faster). The same table from process CPU times is printed too (the machine is shared: wall
+lobattodae the best s (and natively the best s), and the ratios ours(best s)/Dopri8, /DOP853,
+/Radau (< 1: ours is faster), natively against Dopri8 too. The same table from process CPU times is printed too (the machine is shared: wall
 time ≫ CPU time means other processes held the cores).
 
 Usage (repository root)::
@@ -66,7 +71,7 @@ from testset import PROBLEMS, error
 
 TARGET = 1e-8
 STAGES = (3, 4, 5, 6)
-SOLVERS = ("lobattodae", "Dopri8", "Kvaerno5", "DOP853", "Radau", "IDA")
+SOLVERS = ("lobattodae", "native", "Dopri8", "Kvaerno5", "DOP853", "Radau", "IDA")
 MAX_STEPS = 1_000_000
 
 
@@ -83,19 +88,25 @@ def _sweep(label, entry, opts) -> Sweep:
                  floor=3 * entry.ref_accuracy)
 
 
-def run_lobattodae(entry, setup, s, tols, opts):
-    method = L.LobattoIIIAIIIB(stages=s)
+def run_lobattodae(entry, setup, s, tols, opts, native=False):
+    """``solve`` with ``LobattoIIIAIIIB(stages=s)``, or (``native``) with the native step of the
+    problem's ``lobattodae.mechanics`` model (``entry.mechanics``), whose C is compiled here, before
+    the sweep."""
+    problem, method, args = setup.problem, L.LobattoIIIAIIIB(stages=s), setup.args
+    if native:
+        model, args = entry.mechanics()
+        problem, method = model.problem, model.native(s)
     ts, final_only = _output_plan(entry, setup)
     kw = {"save_every": "final"} if final_only else {"t_eval": ts}
 
     def call(tol):
-        return L.solve(setup.problem, method, setup.t_span, setup.q0, setup.p0, args=setup.args,
-                       rtol=tol, atol=tol, throw=False, **kw)
+        return L.solve(problem, method, setup.t_span, setup.q0, setup.p0, args=args, rtol=tol, atol=tol, throw=False,
+                       **kw)
 
     def post(sol):
         return solution_point(sol, lambda sol: error(entry, np.asarray(sol.t), np.asarray(sol.q), np.asarray(sol.p)))
 
-    return _sweep(f"lobattodae s={s}", entry, opts).run(tols, call, post, first_call=True)
+    return _sweep(f"lobattodae {'native ' if native else ''}s={s}", entry, opts).run(tols, call, post, first_call=True)
 
 
 def run_diffrax(entry, setup, ode, solver: str, tols, opts):
@@ -183,6 +194,10 @@ def run_problem(entry, opts, save) -> dict:
         for s in opts.stages:
             sw[f"s={s}"] = run_lobattodae(entry, setup, s, tols, opts)
             save(out)
+    if "native" in opts.solvers and entry.mechanics is not None:
+        for s in opts.native_stages:
+            sw[f"native s={s}"] = run_lobattodae(entry, setup, s, tols, opts, native=True)
+            save(out)
     for solver in ("Dopri8", "Kvaerno5") if ode is not None else ():
         if solver in opts.solvers:
             sw[solver] = run_diffrax(entry, setup, ode, solver, tols, opts)
@@ -209,15 +224,22 @@ def run_problem(entry, opts, save) -> dict:
 # ================================================================================== summary
 def summarize(entry_out: dict, key: str = "time") -> dict:
     t = {k: time_at(v["points"], TARGET, time=key) for k, v in entry_out["sweeps"].items()}
-    ours = {k: v for k, v in t.items() if k.startswith("s=") and v is not None}
-    best = min(ours, key=ours.get) if ours else None
-    tb = ours.get(best) if best else None
 
-    def ratio(other):
-        return tb / t[other] if tb is not None and t.get(other) else None
+    def best_of(prefix):
+        times = {k: v for k, v in t.items() if k.startswith(prefix) and v is not None}
+        best = min(times, key=times.get) if times else None
+        return best, times.get(best) if best else None
+
+    best, tb = best_of("s=")
+    native_best, tn = best_of("native s=")
+
+    def ratio(ours, other):
+        return ours / t[other] if ours is not None and t.get(other) else None
 
     return {"key": key, "time_at_1e-8": t, "ours_best_s": best, "ours": tb,
-            "ours_over": {k: ratio(k) for k in ("Dopri8", "Kvaerno5", "DOP853", "Radau", "IDA")}}
+            "ours_over": {k: ratio(tb, k) for k in ("Dopri8", "Kvaerno5", "DOP853", "Radau", "IDA")},
+            "native_best_s": native_best, "native": tn,
+            "native_over": {k: ratio(tn, k) for k in ("Dopri8", "DOP853", "Radau")}}
 
 
 def _fmt_s(x: float | None) -> str:
@@ -230,11 +252,13 @@ def table(out: dict, key: str = "time") -> str:
         sm = summarize(e, key)
         t, r = sm["time_at_1e-8"], sm["ours_over"]
         ours = [f"s={s}: {_fmt_s(t[f's={s}'])}" for s in STAGES if f"s={s}" in t]
-        rows.append([name, "; ".join(ours), sm["ours_best_s"] or "not reached"]
+        native = [f"{k[7:]}: {_fmt_s(v)}" for k, v in t.items() if k.startswith("native s=")]
+        rows.append([name, "; ".join(ours), sm["ours_best_s"] or "not reached", "; ".join(native) or "–"]
                     + [_fmt_s(t.get(k)) for k in ("Dopri8", "Kvaerno5", "DOP853", "Radau", "IDA")]
-                    + [fmt(r[k], ".2g") for k in ("Dopri8", "DOP853", "Radau", "Kvaerno5", "IDA")])
-    return md_table(["problem", "lobattodae", "best", "Dopri8", "Kvaerno5", "DOP853", "Radau", "IDA",
-                     "ours/Dopri8", "ours/DOP853", "ours/Radau", "ours/Kvaerno5", "ours/IDA"], rows)
+                    + [fmt(r[k], ".2g") for k in ("Dopri8", "DOP853", "Radau", "Kvaerno5", "IDA")]
+                    + [fmt(sm.get("native_over", {}).get("Dopri8"), ".2g")])
+    return md_table(["problem", "lobattodae", "best", "natively", "Dopri8", "Kvaerno5", "DOP853", "Radau", "IDA",
+                     "ours/Dopri8", "ours/DOP853", "ours/Radau", "ours/Kvaerno5", "ours/IDA", "native/Dopri8"], rows)
 
 
 # ===================================================================================== plot
@@ -254,12 +278,16 @@ def plot(name: str, e: dict, path: str, meta: dict) -> None:
         pts = [p for p in sw["points"] if math.isfinite(float(p["error"])) and math.isfinite(float(p["time"]))]
         if not pts:
             continue
-        color, marker = STYLE.get(key, ("black", "x"))
-        label = f"lobattodae {key}" if key.startswith("s=") else LABEL.get(key, key)
-        lw = 2.0 if key.startswith("s=") else 1.4
+        native = key.startswith("native ")
+        color, marker = STYLE.get(key[7:] if native else key, ("black", "x"))
+        label = f"lobattodae {key}" if key.startswith(("s=", "native ")) else LABEL.get(key, key)
+        lw = 2.0 if key.startswith(("s=", "native ")) else 1.4
         err = [max(float(p["error"]), 1e-16) for p in pts]
-        ax.loglog([p["time"] for p in pts], err, "-", color=color, marker=marker, ms=5, lw=lw, label=label)
-        ax2.loglog([p["tol"] for p in pts], err, "-", color=color, marker=marker, ms=5, lw=lw)
+        style = "--" if native else "-"
+        ax.loglog([p["time"] for p in pts], err, style, color=color, marker=marker, ms=5, lw=lw, label=label,
+                  mfc="none" if native else color)
+        ax2.loglog([p["tol"] for p in pts], err, style, color=color, marker=marker, ms=5, lw=lw,
+                   mfc="none" if native else color)
     tl = np.array([1e-13, 1e-3])
     ax2.loglog(tl, tl, "k--", lw=1, label="error = rtol")
     ax2.loglog(tl, 30 * tl, "k:", lw=1, label="error = 30·rtol")
@@ -290,7 +318,7 @@ def plot(name: str, e: dict, path: str, meta: dict) -> None:
     fig.text(0.01, 0.005, f"{machine.get('cpu', '')}, {machine.get('cpu_count', '?')} CPUs, load average {la[0]} at "
              f"start, {e.get('loadavg_end', ['?'])[0]} at end; XLA CPU pool 1 thread; "
              + (f"process pinned to CPU {meta['pin_cpu']}; " if meta.get("pin_cpu") is not None else "process not pinned; ")
-             + "lobattodae: whole solve() call; shaded: below the reference's own accuracy",
+             + "lobattodae: whole solve() call (dashed, open markers: natively); shaded: below the reference's own accuracy",
              fontsize=7, color="gray")
     fig.tight_layout(rect=(0, 0.11, 1, 1))
     save_figure(fig, path)
@@ -302,6 +330,8 @@ def main(argv=None) -> int:
     ap.add_argument("--problems", nargs="+", default=["andrews"], help="names of testset.PROBLEMS, or 'all'")
     ap.add_argument("--solvers", nargs="+", default=list(SOLVERS), choices=SOLVERS)
     ap.add_argument("--stages", nargs="+", type=int, default=list(STAGES))
+    ap.add_argument("--native-stages", nargs="+", type=int, default=[4, 5, 6],
+                    help="s of the native sweeps (problems with a lobattodae.mechanics model)")
     ap.add_argument("--half-decades", action="store_true", help="tolerances in half decades (default: decades)")
     ap.add_argument("--no-ida", action="store_true", help="skip SUNDIALS IDA")
     ap.add_argument("--budget", type=float, default=20.0, help="stop a sweep after a call this long [s]")
@@ -327,7 +357,8 @@ def main(argv=None) -> int:
             ap.error(f"unknown problem {nm!r}; known: {', '.join(PROBLEMS)}")
     start = time.perf_counter()
     a.meta = meta = run_meta(ida=ida_available()[1], budget_s=a.budget, repeats=a.repeats,
-                             repeat_limit_s=a.repeat_limit, solvers=a.solvers, stages=a.stages, pin_cpu=a.pin_cpu,
+                             repeat_limit_s=a.repeat_limit, solvers=a.solvers, stages=a.stages,
+                             native_stages=a.native_stages, pin_cpu=a.pin_cpu,
                              cpu_affinity=a.cpus)
     log(f"testset_wp: {meta['command']}  (load average {meta['loadavg_start']})")
     for nm in names:

@@ -45,6 +45,7 @@ def test_registry():
     assert PROBLEMS["servo-sleigh"].build().problem is PROBLEMS["servo-sleigh-rest"].build().problem
     assert [e.name for e in PROBLEMS.values() if e.long] == ["fekete", "sleigh", "knife-edge"]
     assert [e.name for e in PROBLEMS.values() if e.stiff] == ["crank", "servo-sleigh", "servo-sleigh-rest"]
+    assert [e.name for e in PROBLEMS.values() if e.mechanics] == ["andrews", "rolling-disc", "fourbar"]
 
 
 def test_every_problem_has_a_convergence_study():
@@ -126,8 +127,8 @@ def test_andrews_lagrangian_twin_has_the_published_equations():
     Coriolis terms left to Lagrange's equations) has the published f and g at random states (its λ
     the test set's with the opposite sign), and natively (generated C, constant steps) it ends where
     the test set's problem does, within the fast test's bound of the published reference."""
-    mdl, s = andrews.model(), andrews.build()
-    args = mdl.args(**andrews.PARAMS)
+    mdl, args = PROBLEMS["andrews"].mechanics()
+    s = andrews.build()
     assert (mdl.n, mdl.m, mdl.n_holonomic) == (7, 6, 6)
     rng = np.random.default_rng(3)
     for _ in range(3):

@@ -63,6 +63,11 @@ class TestProblem:
         modes, decaying or oscillating (step sizes far above their time scale are of interest).
     reference : callable or None
         ``reference(t) -> (q, p)`` for closed forms (any t); None for tabulated references.
+    mechanics : callable or None
+        ``mechanics() -> (model, args)``: the same equations as a ``lobattodae.mechanics`` model
+        (the problem itself where it was converted from SymPy, else a twin written with
+        ``from_lagrangian``), with the same q and p, so that it runs natively
+        (``model.native(s)``) against the same reference; None where there is none.
     """
 
     __test__ = False  # not a pytest test class
@@ -79,6 +84,7 @@ class TestProblem:
     long: bool = False
     stiff: bool = False
     reference: Callable | None = None
+    mechanics: Callable | None = None
 
     def __post_init__(self):
         if self.compare not in ("q", "qp"):

@@ -316,4 +316,5 @@ def _p_ref():
 PROBLEM = TestProblem(
     "andrews", "Hairer & Wanner, Solving ODEs II (2nd ed. 1996), Sect. VII.7, eqs. (7.1)-(7.6); Mazzia & Magherini, "
     "Test Set for IVP Solvers, release 2.4 (Bari 2008), problem 'andrews' (andrews.f)", build, t_ref=(T_END,),
-    q_ref=(Q_REF,), p_ref=(_p_ref(),), ref_accuracy=1e-10, test=FastTest(stages=5, n_steps=100, bound=1.7e-9))
+    q_ref=(Q_REF,), p_ref=(_p_ref(),), ref_accuracy=1e-10, test=FastTest(stages=5, n_steps=100, bound=1.7e-9),
+    mechanics=lambda: (model(), model().args(**PARAMS)))

@@ -194,4 +194,5 @@ PROBLEM = TestProblem(
     "fourbar", "SymPy tutorial 'A four bar linkage' (joints framework: three PinJoints, the loop closed by two "
     "holonomic constraints in a System), with masses and uniform gravity; converted by "
     "lobattodae.mechanics.from_system", build, T_REF, Q_REF, P_REF, ref_accuracy=3e-12,
-    test=FastTest(stages=4, n_steps=800, bound=1.2e-9))
+    test=FastTest(stages=4, n_steps=800, bound=1.2e-9),
+    mechanics=lambda: (model(), build().args))

@@ -206,4 +206,5 @@ PROBLEM = TestProblem(
     "(rollingdisc_example_kane), with the contact point's coordinates, dependent speeds and rolling velocity "
     "constraints as in sympy/physics/mechanics/tests/test_kane5.py; converted by "
     "lobattodae.mechanics.from_kanes_method", build, T_REF, Q_REF, P_REF, ref_accuracy=2e-12,
-    test=FastTest(stages=5, n_steps=400, bound=1.2e-8))
+    test=FastTest(stages=5, n_steps=400, bound=1.2e-8),
+    mechanics=lambda: (model(), build().args))
