@@ -14,7 +14,8 @@ from ``jax.monitoring``):
   (``model.native(4).solve``: the model built, its C generated and compiled, each attempt a native
   call; with ``--cache cold`` the compiled library is not kept either);
 * ``andrews``: Andrews' squeezer (7 bodies, 6 holonomic constraints; the external test set),
-  s = 5, adaptive (rtol = atol = 1e-8), to t = 0.03;
+  s = 5, adaptive (rtol = atol = 1e-8), to t = 0.03; ``native-andrews``: the same run of its
+  twin written with ``lobattodae.mechanics`` (``testset.andrews.model()``), natively;
 * ``bicycle``: the Whipple bicycle at 5 m/s, s = 4, 1000 constant steps over 10 s (the time
   after the model is built; SymPy and code generation are timed apart);
 * ``dopri8-knife-edge``, ``dopri8-andrews``: diffrax's Dopri8 (PID, jitted, as
@@ -88,6 +89,17 @@ S = andrews.build()
 t1 = time.perf_counter()
 sol = L.solve(S.problem, L.LobattoIIIAIIIB(stages=5), S.t_span, S.q0, S.p0, args=S.args, rtol=1e-8, atol=1e-8)
 done(f"first result {time.perf_counter() - t0:.2f} s (solve {time.perf_counter() - t1:.2f} s)")
+""",
+    "native-andrews": """
+import sys; sys.path.insert(0, "benchmarks")
+from testset import andrews
+t1 = time.perf_counter()
+model = andrews.model()
+S = andrews.build()
+t2 = time.perf_counter()
+sol = L.solve(model.problem, model.native(5), S.t_span, S.q0, S.p0, args=model.args(**andrews.PARAMS), rtol=1e-8,
+              atol=1e-8)
+done(f"first result {time.perf_counter() - t0:.2f} s (model {t2 - t1:.2f} s, then C and solve {time.perf_counter() - t2:.2f} s)")
 """,
     "bicycle": """
 from lobattodae.mechanics import bicycle as bike
