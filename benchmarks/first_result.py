@@ -18,6 +18,9 @@ from ``jax.monitoring``):
   twin written with ``lobattodae.mechanics`` (``testset.andrews.model()``), natively;
 * ``bicycle``: the Whipple bicycle at 5 m/s, s = 4, 1000 constant steps over 10 s (the time
   after the model is built; SymPy and code generation are timed apart);
+* ``models``: building the knife edge, the falling disk, Andrews' squeezer (its Lagrangian twin)
+  and the Whipple bicycle with ``lobattodae.mechanics`` (each the user's SymPy and
+  ``from_lagrangian``; with ``--cache warm`` the derivation comes from the model cache);
 * ``dopri8-knife-edge``, ``dopri8-andrews``: diffrax's Dopri8 (PID, jitted, as
   ``benchmarks/lib/baselines.py`` sets it up) on the index-1 form of the same problems, at the
   same tolerance, for scale: the time from ``import diffrax`` to its first result;
@@ -100,6 +103,19 @@ t2 = time.perf_counter()
 sol = L.solve(model.problem, model.native(5), S.t_span, S.q0, S.p0, args=model.args(**andrews.PARAMS), rtol=1e-8,
               atol=1e-8)
 done(f"first result {time.perf_counter() - t0:.2f} s (model {t2 - t1:.2f} s, then C and solve {time.perf_counter() - t2:.2f} s)")
+""",
+    "models": """
+import sys; sys.path.insert(0, "benchmarks")
+from lobattodae import mechanics
+from lobattodae.mechanics import bicycle as bike
+from testset import andrews
+times = []
+for name, build in (("knife edge", mechanics.systems.knife_edge), ("falling disk", mechanics.systems.falling_disk),
+                    ("Andrews", andrews.model), ("bicycle", bike.whipple_bicycle)):
+    t1 = time.perf_counter()
+    build()
+    times.append(f"{name} {time.perf_counter() - t1:.2f}")
+done("models built (SymPy and lobattodae.mechanics, after the imports): " + ", ".join(times) + " s")
 """,
     "bicycle": """
 from lobattodae.mechanics import bicycle as bike

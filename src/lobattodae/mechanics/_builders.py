@@ -5,12 +5,13 @@ constraints written in SymPy (:func:`from_lagrangian`), from SymPy's ``Lagranges
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Mapping, Sequence
 
 import numpy as np
 import sympy as sp
 
-
+from . import _model_cache
 from ._model import RANK_TOL, LagrangianModel
 from ._parsing import _Context, _err, _free_of, _labelled, _without
 
@@ -82,7 +83,26 @@ def from_lagrangian(
     -----
     The multipliers are ordered as ``model.constraint_labels``: nonholonomic constraints
     first, then holonomic ones; ``p' = ∂L/∂q + F + μᵀλ``.
+
+    What is derived (the mass matrix, the constraints' coefficients, the generated code) is kept
+    on disk by the inputs, so that a later process given the same ones restores the model
+    instead of deriving it again (the Whipple bicycle: seconds; off with
+    ``LOBATTODAE_NO_CACHE=1``; see ``docs/mechanics.md``, "Parameters and compilation").
     """
+    key = _model_cache.model_key("from_lagrangian", {
+        "lagrangian": lagrangian, "coordinates": coordinates, "t": t, "nonholonomic": nonholonomic,
+        "holonomic": holonomic, "forces": forces, "name": name, "defaults": defaults, "simplify": simplify})
+    kept = _model_cache.load(key)
+    if kept is not None:
+        with contextlib.suppress(Exception):  # an entry of another layout: derived again below
+            return LagrangianModel._restore(kept)
+    model = _derive(lagrangian, coordinates, t, nonholonomic, holonomic, forces, name, defaults, simplify)
+    _model_cache.store(key, model._snapshot())
+    return model
+
+
+def _derive(lagrangian, coordinates, t, nonholonomic, holonomic, forces, name, defaults, simplify) -> LagrangianModel:
+    """:func:`from_lagrangian`'s derivation (validation, M, a, V, μ, ν, F, ψ, the parameters)."""
     ctx = _Context(coordinates, t)
     name = "LagrangianModel" if name is None else str(name)
     L = ctx.internal(lagrangian, "the Lagrangian")

@@ -420,9 +420,9 @@ def _check_expression(expr, names: frozenset) -> None:
                 raise _UnsafeSource("a ** argument" if node.arg is None else f"the keyword {node.arg!r}")
 
 
-def _check_source(source: str, specs) -> None:
-    """Refuse (``_UnsafeSource``) a generated module that is not made of what the generator writes:
-    see the module docstring."""
+def _check_source(source: str, names) -> None:
+    """Refuse (``_UnsafeSource``) a generated module that is not made of what the generator writes
+    (the definitions of the functions ``names``, in order): see the module docstring."""
     try:
         tree = ast.parse(source)
     except (SyntaxError, ValueError) as exc:
@@ -430,7 +430,7 @@ def _check_source(source: str, specs) -> None:
     body = list(tree.body)
     if body and _docstring(body[0]):
         body = body[1:]
-    expected = [spec.name for spec in specs]
+    expected = list(names)
     if [getattr(stmt, "name", None) for stmt in body] != expected or not all(
             type(stmt) is ast.FunctionDef for stmt in body):
         raise _UnsafeSource("statements other than the definitions of " + ", ".join(expected))
@@ -488,9 +488,26 @@ def generate_module(label: str, specs, t: sp.Symbol, params) -> GeneratedModule:
         src, count = _function_source(spec, t, params)
         bodies.append(src)
         counts[spec.name] = count
-    source = header + "\n\n".join(bodies)
+    module = load_module(label, header + "\n\n".join(bodies), [spec.name for spec in specs])
+    module.cse_counts = counts
+    return module
+
+
+def load_module(label: str, source: str, names, *, check: bool = True) -> GeneratedModule:
+    """Check the generated ``source`` (:func:`_check_source`: the definitions of ``names`` and
+    nothing the generator does not write) and execute it: the module of :func:`generate_module`.
+    ``check=False`` for a source that passed the check when it was written and was kept since
+    (``lobattodae.mechanics._model_cache``, whose entries are trusted as the native libraries are).
+
+    Raises
+    ------
+    LobattoDAEInputError
+        The source failed the check; nothing of it has run.
+    """
+    label = str(label)
     try:
-        _check_source(source, specs)
+        if check:
+            _check_source(source, names)
     except _UnsafeSource as exc:
         raise LobattoDAEInputError(
             f"{label!r}: the generated code failed lobattodae's safety check ({exc}) and was not run. The "
@@ -511,5 +528,5 @@ def generate_module(label: str, specs, t: sp.Symbol, params) -> GeneratedModule:
     code = compile(source, filename, "exec")
     linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
     exec(code, namespace)  # noqa: S102 - our own generated source, checked by _check_source
-    functions = {spec.name: namespace[spec.name] for spec in specs}
-    return GeneratedModule(functions=functions, source=source, filename=filename, cse_counts=counts)
+    functions = {name: namespace[name] for name in names}
+    return GeneratedModule(functions=functions, source=source, filename=filename)

@@ -36,7 +36,7 @@ import sympy as sp
 from .. import _compile
 from .._errors import ShapeError
 from .._problem import PartitionedDAE
-from ._codegen import FunctionSpec, SolveSpec, generate_module, plain_symbols
+from ._codegen import FunctionSpec, SolveSpec, generate_module, load_module, plain_symbols
 from ._parsing import _Context, _err
 
 __all__ = [
@@ -211,10 +211,35 @@ class LagrangianModel:
             FunctionSpec("forces", (Q, QD), (("vector", list(F)),), None, "F(t, q, qdot)"),
             FunctionSpec("lagrangian", (Q, QD), (("scalar", L),), None, "L(t, q, qdot)"),
         ]
+        assert tuple(spec.name for spec in specs) == self._FUNCTIONS  # what a restored model defines
         params = list(zip(self.parameters, ks))
         module = generate_module(self.name, specs, t, params)
         self.source = module.source
-        fns = module.functions
+        self._bind(module.functions)
+
+    #: What a model is besides its functions: kept across processes (``_model_cache``).
+    _STATE = ("name", "_ctx", "t", "coordinates", "coordinate_names", "n", "_param_symbols", "parameters",
+              "defaults", "constraint_labels", "m", "n_holonomic", "symbolic", "source")
+    #: The generated module's functions, in the order the generator writes them.
+    _FUNCTIONS = ("f", "g", "f_and_g", "phi", "hamiltonian", "mass_matrix", "constraint_terms", "momenta",
+                  "constraint_forces", "holonomic", "forces", "lagrangian")
+
+    def _snapshot(self) -> dict:
+        """The model's state without its functions (which its ``source`` defines)."""
+        return {key: getattr(self, key) for key in self._STATE}
+
+    @classmethod
+    def _restore(cls, state: dict) -> "LagrangianModel":
+        """The model of :meth:`_snapshot`, its functions from its source (which passed
+        :func:`~lobattodae.mechanics._codegen.load_module`'s check when it was generated)."""
+        model = cls.__new__(cls)
+        for key in cls._STATE:
+            setattr(model, key, state[key])
+        model._bind(load_module(model.name, model.source, cls._FUNCTIONS, check=False).functions)
+        return model
+
+    def _bind(self, fns: dict) -> None:
+        """The problem and the compiled helpers from the generated functions."""
         self._fns = fns
         self.problem = LagrangianDAE(
             f=fns["f"],
