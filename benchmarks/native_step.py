@@ -226,7 +226,8 @@ FIRST_CASES = ("falling disk", "bicycle")
 
 def first_result(repeats: int, cases) -> list[dict]:
     """Fresh processes, each with an empty cache directory; the native path then once more with
-    the same directory ("native, warm": a new process that finds the compiled library)."""
+    the same directory ("native, warm": a new process that finds the compiled library and the
+    derived model, ``lobattodae.mechanics._model_cache``)."""
     rows = []
     for case in cases:
         for _ in range(repeats):
