@@ -20,7 +20,9 @@ Solvers (``lib.baselines``; XLA's CPU pool is one thread for every solver of the
   time is the end of the interval, else ``t_eval=t_ref``; the whole ``solve`` call is timed.
 * **lobattodae native** (``native s=...``), for the problems that have a ``lobattodae.mechanics``
   model of their equations (``TestProblem.mechanics``: the four-bar linkage and the rolling disc
-  as converted from SymPy, Andrews' squeezer as its Lagrangian twin): ``solve(model.problem,
+  as converted from SymPy, Andrews' squeezer and the slider crank as their Lagrangian twins; the
+  crank's model carries momenta where the problem carries velocities, converted by
+  ``TestProblem.mechanics_momenta``): ``solve(model.problem,
   model.native(s), ...)`` with the same options, each attempt one call into the model's
   generated C (its compilation, once per model and s, is outside the timings: a warm-up call).
 * **diffrax Dopri8** and **diffrax Kvaerno5** on the index-1 ODE of the problem
@@ -92,19 +94,26 @@ def run_lobattodae(entry, setup, s, tols, opts, native=False):
     """``solve`` with ``LobattoIIIAIIIB(stages=s)``, or (``native``) with the native step of the
     problem's ``lobattodae.mechanics`` model (``entry.mechanics``), whose C is compiled here, before
     the sweep."""
-    problem, method, args = setup.problem, L.LobattoIIIAIIIB(stages=s), setup.args
+    problem, method, args, p0 = setup.problem, L.LobattoIIIAIIIB(stages=s), setup.args, setup.p0
+    to_problem = None
     if native:
         model, args = entry.mechanics()
         problem, method = model.problem, model.native(s)
+        if entry.mechanics_momenta is not None:  # the model's momenta are not the problem's p
+            to_model, to_problem = entry.mechanics_momenta
+            p0 = to_model(setup.t_span[0], setup.q0, setup.p0)
     ts, final_only = _output_plan(entry, setup)
     kw = {"save_every": "final"} if final_only else {"t_eval": ts}
 
     def call(tol):
-        return L.solve(problem, method, setup.t_span, setup.q0, setup.p0, args=args, rtol=tol, atol=tol, throw=False,
-                       **kw)
+        return L.solve(problem, method, setup.t_span, setup.q0, p0, args=args, rtol=tol, atol=tol, throw=False, **kw)
+
+    def measure(sol):
+        t, q, p = np.asarray(sol.t), np.asarray(sol.q), np.asarray(sol.p)
+        return error(entry, t, q, p if to_problem is None else to_problem(t, q, p))
 
     def post(sol):
-        return solution_point(sol, lambda sol: error(entry, np.asarray(sol.t), np.asarray(sol.q), np.asarray(sol.p)))
+        return solution_point(sol, measure)
 
     return _sweep(f"lobattodae {'native ' if native else ''}s={s}", entry, opts).run(tols, call, post, first_call=True)
 

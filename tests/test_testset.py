@@ -45,7 +45,8 @@ def test_registry():
     assert PROBLEMS["servo-sleigh"].build().problem is PROBLEMS["servo-sleigh-rest"].build().problem
     assert [e.name for e in PROBLEMS.values() if e.long] == ["fekete", "sleigh", "knife-edge"]
     assert [e.name for e in PROBLEMS.values() if e.stiff] == ["crank", "servo-sleigh", "servo-sleigh-rest"]
-    assert [e.name for e in PROBLEMS.values() if e.mechanics] == ["andrews", "rolling-disc", "fourbar"]
+    assert [e.name for e in PROBLEMS.values() if e.mechanics] == ["andrews", "crank", "rolling-disc", "fourbar"]
+    assert [e.name for e in PROBLEMS.values() if e.mechanics_momenta] == ["crank"]
 
 
 def test_every_problem_has_a_convergence_study():
@@ -242,6 +243,40 @@ def test_fekete_published_reference_agrees_with_scipy():
     x_ref = np.array(fekete.X_REF)
     assert np.max(np.abs(x - x_ref) / (1 + np.abs(x_ref))) < PROBLEMS["fekete"].ref_accuracy
     assert np.max(np.abs(v)) < 1e-11  # at rest
+
+
+def test_crank_lagrangian_twin_has_the_published_equations():
+    """The slider crank written with lobattodae.mechanics (the test set's mass matrix, the rod's
+    elastic energy, the three position constraints; its Coriolis, centrifugal and elastic forces
+    left to Lagrange's equations) has the test set's F: at random states its f gives v from
+    p = M v and its g (λ = 0) equals d/dt (M v) = M v' + Ṁ v with the test set's v'; natively
+    (constant steps) it ends where the test set's problem does, within the fast test's bound."""
+    entry = PROBLEMS["crank"]
+    mdl, args = entry.mechanics()
+    to_model, to_problem = entry.mechanics_momenta
+    s = crank.build()
+    assert (mdl.n, mdl.m, mdl.n_holonomic, mdl.parameters) == (7, 3, 3, ())
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        q = np.array(s.q0) + 0.3 * rng.standard_normal(7)
+        v = np.array(s.p0) + 10.0 * rng.standard_normal(7)
+        p = to_model(0.0, q, v)
+        np.testing.assert_allclose(mdl.problem.f(0.0, jnp.asarray(q), jnp.asarray(p), args), v, rtol=1e-13,
+                                   atol=1e-12 * np.max(np.abs(v)))
+        acc = np.asarray(s.problem.g(0.0, jnp.asarray(q), jnp.asarray(v), jnp.zeros(3), None))
+        _, mdot = jax.jvp(crank.mass_matrix, (jnp.asarray(q),), (jnp.asarray(v),))
+        expected = crank.mass_matrix(q) @ acc + np.asarray(mdot) @ v
+        np.testing.assert_allclose(mdl.problem.g(0.0, jnp.asarray(q), jnp.asarray(p), jnp.zeros(3), args), expected,
+                                   rtol=1e-12, atol=1e-12 * np.max(np.abs(expected)))
+    if _native.c_compiler() is None:
+        pytest.skip("no C compiler on this machine: the native run is not tried")
+    native = mdl.native(entry.test.stages).solve(s.t_span, s.q0, to_model(0.0, s.q0, s.p0), n_steps=entry.test.n_steps,
+                                                 args=args)
+    t, q = np.asarray(native.t), np.asarray(native.q)
+    assert error(entry, t, q, to_problem(t, q, np.asarray(native.p))) < entry.test.bound
+    ours = L.solve(s.problem, L.LobattoIIIAIIIB(stages=entry.test.stages), s.t_span, s.q0, s.p0,
+                   n_steps=entry.test.n_steps)
+    np.testing.assert_allclose(q[-1], ours.q[-1], rtol=0, atol=1e-12 * (1 + float(jnp.max(jnp.abs(ours.q[-1])))))
 
 
 # ----------------------------------------------------------------------------- rolling disc

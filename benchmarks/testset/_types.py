@@ -66,8 +66,13 @@ class TestProblem:
     mechanics : callable or None
         ``mechanics() -> (model, args)``: the same equations as a ``lobattodae.mechanics`` model
         (the problem itself where it was converted from SymPy, else a twin written with
-        ``from_lagrangian``), with the same q and p, so that it runs natively
-        (``model.native(s)``) against the same reference; None where there is none.
+        ``from_lagrangian``), with the same q (and p, unless ``mechanics_momenta``), so that it
+        runs natively (``model.native(s)``) against the same reference; None where there is none.
+    mechanics_momenta : pair of callables or None
+        ``(to_model, to_problem)``, each ``(t, q, p) -> p``, where the model's momenta are not the
+        problem's ``p`` (the slider crank carries velocities): the model's initial momenta from
+        the problem's, and the problem's ``p`` from the model's results (rows allowed); None where
+        they are the same.
     """
 
     __test__ = False  # not a pytest test class
@@ -85,6 +90,7 @@ class TestProblem:
     stiff: bool = False
     reference: Callable | None = None
     mechanics: Callable | None = None
+    mechanics_momenta: tuple | None = None
 
     def __post_init__(self):
         if self.compare not in ("q", "qp"):

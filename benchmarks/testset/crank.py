@@ -260,8 +260,68 @@ def build() -> Setup:
     return Setup(problem=problem, q0=q0, p0=v0, args=None, t_span=(0.0, T_END))
 
 
+# ----------------------------------------------------------------------------- the Lagrangian twin
+@functools.cache
+def model():
+    """The same mechanism written as a user of :mod:`lobattodae.mechanics` writes it
+    (:func:`~lobattodae.mechanics.from_lagrangian`), built once: the kinetic energy ½ vᵀ M(q) v of
+    the test set's mass matrix (its entries written out in SymPy, the rod's finite-element
+    matrices as numbers), the rod's elastic energy ½ eᵀ K e, and the three position constraints
+    ψ(t, q) = 0, the drive φ₁ = Ω t among them. The Coriolis, centrifugal and elastic forces of
+    the test set's F are not entered: Lagrange's equations derive them; that they equal the
+    published ones is checked at random states (``tests/test_testset.py``). Its momenta are
+    p = M(q) v where the test set's problem carries v (:data:`PROBLEM`'s ``mechanics_momenta``
+    converts), and it runs natively (``model().native(s)``: generated C)."""
+    import sympy as sp
+    from sympy.physics.mechanics import dynamicsymbols
+
+    from lobattodae import mechanics
+
+    t = sp.Symbol("t")
+    q = dynamicsymbols("phi1 phi2 x3 e1 e2 e3 e4")
+    e = sp.Matrix(q[3:])
+    num = lambda a: sp.Matrix(np.atleast_2d(a)) if np.ndim(a) == 2 else sp.Matrix(a)  # noqa: E731
+    mq, kq, bq, c1, c2, c12, c21 = (num(a) for a in (MQ, KQ, BQ, C1, C2, C12, C21))
+    s12, co12 = sp.sin(q[0] - q[1]), sp.cos(q[0] - q[1])
+    dot = lambda a, b: (a.T * b)[0, 0]  # noqa: E731
+    m12 = 0.5 * L1 * L2 * M2 * co12 + RHO * L1 * (s12 * dot(c2, e) + co12 * dot(c1, e))
+    m22 = J2 + (e.T * mq * e)[0, 0] + 2.0 * RHO * dot(c12, e)
+    row1 = RHO * L1 * (-s12 * c1 + co12 * c2)
+    row2 = RHO * c21 + RHO * (bq.T * e)
+    M = sp.zeros(7, 7)
+    M[0, 0], M[0, 1], M[1, 0], M[1, 1], M[2, 2] = J1 + M2 * L1 * L1, m12, m12, m22, M3
+    for k in range(4):
+        M[0, 3 + k] = M[3 + k, 0] = row1[k]
+        M[1, 3 + k] = M[3 + k, 1] = row2[k]
+        for j in range(4):
+            M[3 + k, 3 + j] = mq[k, j]
+    v = sp.Matrix([x.diff(t) for x in q])
+    lagrangian = (v.T * M * v)[0, 0] / 2 - (e.T * kq * e)[0, 0] / 2
+    arm = L2 + q[6]
+    loops = [L1 * sp.sin(q[0]) + arm * sp.sin(q[1]), q[2] - L1 * sp.cos(q[0]) - arm * sp.cos(q[1]),
+             q[0] - OMEGA * t]
+    return mechanics.from_lagrangian(lagrangian, q, t, holonomic=loops, name="flexible slider crank (Lagrangian)")
+
+
+def _momenta(t, q, v):
+    """The twin's momenta p = M(q) v from the test set's velocities (one point or rows)."""
+    q, v = np.asarray(q, float), np.asarray(v, float)
+    if q.ndim == 1:
+        return mass_matrix(q) @ v
+    return np.stack([mass_matrix(qk) @ vk for qk, vk in zip(q, v)])
+
+
+def _velocities(t, q, p):
+    """The test set's velocities v = M(q)⁻¹ p from the twin's momenta (one point or rows)."""
+    q, p = np.asarray(q, float), np.asarray(p, float)
+    if q.ndim == 1:
+        return np.linalg.solve(mass_matrix(q), p)
+    return np.stack([np.linalg.solve(mass_matrix(qk), pk) for qk, pk in zip(q, p)])
+
+
 PROBLEM = TestProblem(
     "crank", "Simeon, Math. Modelling of Systems 2 (1996); Mazzia & Magherini, Test Set for IVP Solvers, "
     "release 2.4 (Bari 2008), problem 'crank' (crank.f), index 2, initial values close to smooth motion",
     build, t_ref=(T_END,), q_ref=(Q_REF,), p_ref=(V_REF,), ref_accuracy=2e-11,
-    test=FastTest(stages=5, n_steps=2000, bound=4.5e-9), stiff=True)
+    test=FastTest(stages=5, n_steps=2000, bound=4.5e-9), stiff=True,
+    mechanics=lambda: (model(), model().args()), mechanics_momenta=(_momenta, _velocities))
