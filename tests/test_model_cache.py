@@ -118,3 +118,16 @@ def test_a_new_process_restores_the_model(cache):
                               timeout=300) for which in ("first", "second")]
     assert [o.returncode for o in outputs] == [0, 0], outputs[1].stderr[-2000:]
     assert outputs[0].stdout == outputs[1].stdout
+
+
+def test_bad_input_gets_the_builders_error_with_the_cache_on(cache):
+    """The key is computed before anything is checked: a bad input still meets from_lagrangian's
+    own message, and nothing is kept for it."""
+    from lobattodae import LobattoDAEInputError
+
+    x, y = dynamicsymbols("x y")
+    with pytest.raises(LobattoDAEInputError, match="not quadratic in the velocities"):
+        from_lagrangian(x.diff(T) ** 4 + y.diff(T) ** 2, [x, y], T, nonholonomic=[x.diff(T) - y.diff(T)])
+    with pytest.raises(LobattoDAEInputError, match="no constraints"):
+        from_lagrangian(x.diff(T) ** 2 + y.diff(T) ** 2, [x, y], T)
+    assert not cache.exists() or not list(cache.glob("*.pkl"))

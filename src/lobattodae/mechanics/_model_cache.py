@@ -70,7 +70,10 @@ def model_key(kind: str, inputs: Mapping) -> str | None:
     """The cache key of a model built by ``kind`` from ``inputs`` (None when the cache is off)."""
     if cache_switched_off():
         return None
-    text = f"{_generator()}\0{kind}\0{_canonical(inputs)}"
+    try:
+        text = f"{_generator()}\0{kind}\0{_canonical(inputs)}"
+    except Exception:  # noqa: BLE001 - inputs SymPy cannot write out: not kept (the builder judges them)
+        return None
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
