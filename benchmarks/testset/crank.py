@@ -280,8 +280,7 @@ def model():
     t = sp.Symbol("t")
     q = dynamicsymbols("phi1 phi2 x3 e1 e2 e3 e4")
     e = sp.Matrix(q[3:])
-    num = lambda a: sp.Matrix(np.atleast_2d(a)) if np.ndim(a) == 2 else sp.Matrix(a)  # noqa: E731
-    mq, kq, bq, c1, c2, c12, c21 = (num(a) for a in (MQ, KQ, BQ, C1, C2, C12, C21))
+    mq, kq, bq, c1, c2, c12, c21 = (sp.Matrix(a) for a in (MQ, KQ, BQ, C1, C2, C12, C21))  # vectors as columns
     s12, co12 = sp.sin(q[0] - q[1]), sp.cos(q[0] - q[1])
     dot = lambda a, b: (a.T * b)[0, 0]  # noqa: E731
     m12 = 0.5 * L1 * L2 * M2 * co12 + RHO * L1 * (s12 * dot(c2, e) + co12 * dot(c1, e))
