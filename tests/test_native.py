@@ -285,3 +285,57 @@ def test_without_a_compiler_the_message_names_the_fix(monkeypatch):
     model = mechanics.systems.knife_edge()
     with pytest.raises(LobattoDAEInputError, match="needs a C compiler.*set CC"):
         model.native(2, tol=3e-14)
+
+
+def _damped_magnetic_knife_edge():
+    """A knife edge in a magnetic field (a gyroscopic term a(q)ᵀq̇), with a drag force that is
+    nonlinear in the velocities: every term of ∂g/∂p that the native step derives (∂M/∂q, ∂a/∂q,
+    ∂F/∂q̇)."""
+    import sympy as sp
+    from sympy.physics.mechanics import dynamicsymbols
+
+    t = sp.Symbol("t")
+    x, y, th = dynamicsymbols("x y theta")
+    m, J, B, c = sp.symbols("m J B c", positive=True)
+    xd, yd, thd = (z.diff(t) for z in (x, y, th))
+    lagrangian = (m * (xd**2 + yd**2) + (J + m * sp.sin(th) ** 2) * thd**2) / 2 + B * (x * yd - y * xd) / 2
+    forces = {x: -c * xd * sp.sqrt(1 + xd**2), th: -c * thd * yd}
+    return mechanics.from_lagrangian(lagrangian, [x, y, th], t, nonholonomic=[sp.sin(th) * xd - sp.cos(th) * yd],
+                                     forces=forces, defaults={"m": 1.3, "J": 0.4, "B": 0.7, "c": 0.2})
+
+
+@pytest.mark.parametrize("build", [mechanics.systems.falling_disk, mechanics.systems.turntable_ball,
+                                   _damped_magnetic_knife_edge])
+def test_newton_s_blocks_in_p_and_lambda_are_the_exact_derivatives(build):
+    """The native Newton matrix takes its blocks in p and λ exactly (∂f/∂p = M⁻¹, ∂g/∂p =
+    (∂g0/∂v) M⁻¹, ∂g/∂λ = μᵀ, ∂φ/∂p = μ M⁻¹): equal to JAX's derivatives of the model's own f,
+    g and φ at random states, to round-off."""
+    import ctypes
+
+    import jax
+
+    model = build()
+    n, m = model.n, model.m
+    args = model.args(**{name: 0.5 + 0.1 * i for i, name in enumerate(model.parameters)})
+    k = np.array([float(args[name]) for name in model.parameters] or [0.0])
+    lib = model.native(4)._lib
+    pointer = ctypes.POINTER(ctypes.c_double)
+    lib.derivatives_pl.argtypes = [ctypes.c_double, pointer, pointer, pointer, pointer, pointer]
+    problem = model.problem
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        t = float(rng.uniform(0.0, 2.0))
+        q, p, lam = rng.normal(size=n), rng.normal(size=n), rng.normal(size=m)
+        out = np.zeros(2 * n * n + 2 * n * m)
+        lib.derivatives_pl(t, *(a.ctypes.data_as(pointer) for a in (q, p, lam, k, out)))
+        fp, gp = out[: n * n].reshape(n, n), out[n * n: 2 * n * n].reshape(n, n)
+        gl, pp = out[2 * n * n: 2 * n * n + n * m].reshape(n, m), out[2 * n * n + n * m:].reshape(m, n)
+        exact = {
+            "fp": jax.jacfwd(lambda p_: problem.f(t, q, p_, args))(p),
+            "gp": jax.jacfwd(lambda p_: problem.g(t, q, p_, lam, args))(p),
+            "gl": jax.jacfwd(lambda l_: problem.g(t, q, p, l_, args))(lam),
+            "pp": jax.jacfwd(lambda p_: problem.phi(t, q, p_, args))(p),
+        }
+        for name, ours in (("fp", fp), ("gp", gp), ("gl", gl), ("pp", pp)):
+            theirs = np.asarray(exact[name])
+            assert np.max(np.abs(ours - theirs)) <= 1e-12 * (1 + np.max(np.abs(theirs))), name

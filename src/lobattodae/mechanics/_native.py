@@ -25,11 +25,14 @@ step end summed with compensation; the start multiplier by the policy ``lam_star
 :class:`~lobattodae.LobattoIIIAIIIB` (``"auto"``: the paper's scheme re-synchronised when λ's
 drift leaves its band, with the same monitor and constants; ``"previous"``; ``"consistent"``);
 Newton's start from the previous step's stage polynomials with their correction; simplified
-Newton with the matrix assembled from per-stage blocks by forward differences
-(:func:`~lobattodae._stage_equations.stage_jacobian_differences`), its LU factors kept across
-iterations and steps, and the stopping and refresh rules of :mod:`lobattodae._newton` (their
-constants are read from there). The iterates differ from the JAX path's only in rounding and in
-where Newton stops below its tolerance.
+Newton with the matrix assembled from per-stage blocks as the JAX path's
+(:func:`~lobattodae._stage_equations.stage_jacobian_differences`): those in q by forward
+differences, those in p and λ exact, from the model's structure (∂f/∂p = M⁻¹, ∂g/∂p =
+(∂g0/∂v) M⁻¹, ∂g/∂λ = μᵀ, ∂φ/∂p = μ M⁻¹; where the JAX path differences them too), its LU
+factors kept across iterations and steps, and the stopping and refresh rules of
+:mod:`lobattodae._newton` (their constants are read from there). The iterates differ from the
+JAX path's only in rounding, in where Newton stops below its tolerance and, rarely, in a refresh
+that the slightly different matrix makes earlier or later.
 
 **The model** is evaluated as ``lobattodae.mechanics`` derives it (``docs/mechanics.md``):
 ``v = M(t, q)⁻¹ (p − a)`` solved numerically (elimination without pivoting, M being symmetric
@@ -42,7 +45,8 @@ step's end is projected onto ψ = 0 and φ = 0 as :mod:`lobattodae._projection` 
 
 **Compiler and cache.** ``$CC`` when set, else the first of ``cc``, ``gcc``, ``clang`` on the
 ``PATH``, with ``-O2`` (no ``-march=native``: a shared cache directory may serve other
-processors). The shared library is kept in ``<cache>/native`` (``<cache>`` as for the
+processors; with gcc on x86-64 Linux the LU factorisation has a second, AVX-512 copy that the
+processor picks at load time, giving the same bits). The shared library is kept in ``<cache>/native`` (``<cache>`` as for the
 compilation cache: ``$LOBATTODAE_CACHE_DIR``, else ``~/.cache/lobattodae``), named by a hash of
 the model (its generated JAX source), s, this generator's code and the compiler command, so a new
 process loads it without generating or compiling the C again; with ``LOBATTODAE_NO_CACHE=1`` each
@@ -153,10 +157,11 @@ def _c(expr) -> str:
     return _PRINTER.doprint(sp.sympify(expr))
 
 
-def _function(name, signature, pre, outputs, symbols) -> str:
+def _function(name, signature, pre, outputs, symbols, optional=()) -> str:
     """A C function ``name(signature)``: read the scalars, evaluate ``pre`` (M row-major, then
     p − a) and solve for v (``pre`` None: no v), then the ``outputs`` (``(array, exprs)`` pairs),
-    sharing subexpressions."""
+    sharing subexpressions; the arrays named in ``optional`` are written only where the caller
+    passes one (not NULL)."""
     n, t, q, p, lam, params, v = symbols
     pre = [] if pre is None else list(pre)
     shared = common_subexpressions(pre, [e for _, exprs in outputs for e in exprs], v if pre else (),
@@ -175,15 +180,22 @@ def _function(name, signature, pre, outputs, symbols) -> str:
     lines += after
     pos = 0
     for array, exprs in outputs:
+        indent = "  "
+        if array in optional:
+            lines.append(f"  if ({array}) {{")
+            indent = "    "
         for i in range(len(exprs)):
-            lines.append(f"  {array}[{i}] = {_c(out_red[pos])};")
+            lines.append(f"{indent}{array}[{i}] = {_c(out_red[pos])};")
             pos += 1
+        if array in optional:
+            lines.append("  }")
     lines.append("}")
     return "\n".join(lines)
 
 
 def model_source(model) -> str:
-    """The C of a model's functions: ``model_fg(t, q, p, lam, k, v, w)`` (``v = f``, ``w = g``),
+    """The C of a model's functions: ``model_fg(t, q, p, lam, k, v, w, gv)`` (``v = f``, ``w = g``,
+    ``gv = ∂g0/∂v`` where not NULL),
     ``model_phi(t, q, p, k, out)``, ``model_lambda(t, q, p, k, lam)`` (the hidden constraint's
     multiplier) and, with holonomic constraints, ``project_end(t, q, p, k)``; ``k`` holds
     ``model.parameters`` in order."""
@@ -216,9 +228,13 @@ def model_source(model) -> str:
     def dot(e):  # the derivative along q' = v at fixed v
         return sp.diff(e, t) + sum((sp.diff(e, qi) * vi for qi, vi in zip(q, v)), zero)
 
-    # g0 = ∂L/∂q + F,  L = ½ vᵀ M v + aᵀ v − V
-    g0 = [sum((v[i] * v[c] * m_(ql, i, c) for i in range(n) for c in range(n)), zero) / 2
+    # g0 = ∂L/∂q + F,  L = ½ vᵀ M v + aᵀ v − V, written with u_lc = Σ_i v_i ∂M_ic/∂q_l, which
+    # also gives ∂g0/∂v = u_lc + ∂a_c/∂q_l + ∂F_l/∂v_c (row-major) for no more than n² additions:
+    # with M⁻¹ it is g's exact derivative in p (model_derivatives_pl)
+    u = [[sum((v[i] * m_(ql, i, c) for i in range(n)), zero) for c in range(n)] for ql in q]
+    g0 = [sum((v[c] * u[l][c] for c in range(n)), zero) / 2
           + sum((v[i] * a_(ql, i) for i in range(n)), zero) - sp.diff(V, ql) + F[l] for l, ql in enumerate(q)]
+    g0_v = [u[l][c] + a_(ql, c) + sp.diff(F[l], v[c]) for l, ql in enumerate(q) for c in range(n)]
     g = [g0[i] + sum((mu[j, i] * lam[j] for j in range(m)), zero) for i in range(n)]
     phi = [sum((mu[j, i] * v[i] for i in range(n)), zero) + nu[j] for j in range(m)]
     # b = g0 − Ṁ v − ȧ,  d = μ̇ v + ν̇
@@ -230,12 +246,15 @@ def model_source(model) -> str:
     symbols = (n, t, q, p, lam, params, v)
     functions = [
         _function("model_fg", "double t, const double *q, const double *p, const double *lam, const double *k, "
-                  "double *v, double *w", pre, [("v", list(v)), ("w", g)], symbols),
+                  "double *v, double *w, double *gv", pre, [("v", list(v)), ("w", g), ("gv", g0_v)], symbols,
+                  optional=("gv",)),
         _function("model_phi", "double t, const double *q, const double *p, const double *k, double *out",
                   pre, [("out", phi)], symbols),
         _function("model_lambda_parts", "double t, const double *q, const double *p, const double *k, "
                   "double *b, double *d, double *mu, double *mo", pre,
                   [("b", b), ("d", d), ("mu", list(mu)), ("mo", list(M))], symbols),
+        _function("model_mass_mu", "double t, const double *q, const double *k, double *mo, double *mu", None,
+                  [("mo", list(M)), ("mu", list(mu))], symbols),
     ]
     nh = len(psi)
     if nh:
@@ -243,11 +262,9 @@ def model_source(model) -> str:
         functions += [
             _function("model_psi", "double t, const double *q, const double *k, double *out, double *jac", None,
                       [("out", list(psi)), ("jac", list(psi_q))], symbols),
-            _function("model_mass_mu", "double t, const double *q, const double *k, double *mo, double *mu", None,
-                      [("mo", list(M)), ("mu", list(mu))], symbols),
         ]
     return (f"#define NQ {n}\n#define NM {m}\n#define NH {nh}\n" + _SPD_SOLVE_C + "\n".join(functions) + "\n"
-            + _LAMBDA_C + (_PROJECTION_C if nh else ""))
+            + _LAMBDA_C + _DERIVATIVES_C + (_PROJECTION_C if nh else ""))
 
 
 _SPD_SOLVE_C = r"""
@@ -284,6 +301,48 @@ static void model_lambda(double t, const double *q, const double *p, const doubl
     for (int l = 0; l < NM; l++) { double a = 0.0; for (int c = 0; c < NQ; c++) a += mu[j*NQ + c] * w[l][c]; sm[j*NM + l] = a; }
   }
   spd_solve(NM, sm, lam);
+}
+"""
+
+
+_DERIVATIVES_C = r"""
+/* The exact derivatives of f, g and φ in p and λ at (t, q, p, λ), which need no differences: with
+   v = f = M⁻¹(p − a), g = g0(t, q, v) + μᵀλ and φ = μ v + ν,
+     ∂f/∂p = M⁻¹,   ∂g/∂p = (∂g0/∂v) M⁻¹,   ∂g/∂λ = μᵀ,   ∂φ/∂p = μ M⁻¹   (∂f/∂λ = 0) */
+static void model_derivatives_pl(double t, const double *q, const double *p, const double *lam, const double *k,
+                                 double fp[NQ][NQ], double gp[NQ][NQ], double gl[NQ][NM], double pp[NM][NQ]) {
+  double v[NQ], w[NQ], gv[NQ*NQ], mo[NQ*NQ], mu[NM*NQ];
+  model_fg(t, q, p, lam, k, v, w, gv);
+  model_mass_mu(t, q, k, mo, mu);
+  for (int kk = 0; kk < NQ; kk++) {   /* M⁻¹ by spd_solve's elimination, all columns of I at once */
+    for (int c = 0; c < NQ; c++) fp[kk][c] = kk == c;
+  }
+  for (int kk = 0; kk < NQ; kk++) {
+    const double inv = 1.0 / mo[kk*NQ + kk];
+    for (int i = kk + 1; i < NQ; i++) {
+      const double fct = mo[i*NQ + kk] * inv;
+      if (fct == 0.0) continue;
+      for (int j = kk + 1; j < NQ; j++) mo[i*NQ + j] -= fct * mo[kk*NQ + j];
+      for (int c = 0; c < NQ; c++) fp[i][c] -= fct * fp[kk][c];
+    }
+  }
+  for (int i = NQ - 1; i >= 0; i--) for (int c = 0; c < NQ; c++) {
+    double sum = fp[i][c];
+    for (int j = i + 1; j < NQ; j++) sum -= mo[i*NQ + j] * fp[j][c];
+    fp[i][c] = sum / mo[i*NQ + i];
+  }
+  for (int r = 0; r < NQ; r++) {
+    for (int c = 0; c < NQ; c++) { double x = 0.0; for (int e = 0; e < NQ; e++) x += gv[r*NQ + e]*fp[e][c]; gp[r][c] = x; }
+    for (int c = 0; c < NM; c++) gl[r][c] = mu[c*NQ + r];
+  }
+  for (int r = 0; r < NM; r++) for (int c = 0; c < NQ; c++) {
+    double x = 0.0; for (int e = 0; e < NQ; e++) x += mu[r*NQ + e]*fp[e][c]; pp[r][c] = x; }
+}
+
+/* model_derivatives_pl for a caller outside the program (the tests): out = (fp, gp, gl, pp), row-major */
+void derivatives_pl(double t, const double *q, const double *p, const double *lam, const double *k, double *out) {
+  model_derivatives_pl(t, q, p, lam, k, (double (*)[NQ])out, (double (*)[NQ])(out + NQ*NQ),
+                       (double (*)[NM])(out + 2*NQ*NQ), (double (*)[NQ])(out + 2*NQ*NQ + NQ*NM));
 }
 """
 
@@ -371,7 +430,7 @@ static void stages(const Tab *tb, double t0, double h, const double *q0, const d
   for (int i = 0; i < S; i++) memcpy(P[i], x + OP + i*NQ, sizeof(double)*NQ);
   memcpy(L[0], lam1, sizeof(double)*NM);
   for (int i = 1; i < S; i++) for (int j = 0; j < NM; j++) L[i][j] = x[OZ + (i - 1)*NM + j] / h;
-  for (int j = 0; j < S; j++) model_fg(t0 + tb->C[j]*h, Q[j], P[j], L[j], k, V[j], W[j]);
+  for (int j = 0; j < S; j++) model_fg(t0 + tb->C[j]*h, Q[j], P[j], L[j], k, V[j], W[j], NULL);
 }
 
 /* p̃_i = p_0 + h Σ_j a_ij W_j (the IIIA momenta of row (3)) */
@@ -402,13 +461,23 @@ static void residual(const Tab *tb, double t0, double h, const double *q0, const
    every update run over contiguous memory. Both are compiled at -O3 by gcc (vectorised; the rest
    of the program stays at -O2, which keeps a large model's compilation short): with the column order,
    18-24 % less time per error-controlled attempt on the falling disk (s = 5, 6), 20 % on the
-   sleigh (benchmarks/RESULTS.md, 2026-11-29 14:50). */
+   sleigh (benchmarks/RESULTS.md, 2026-11-29 14:50). With gcc on x86-64 Linux the factorisation is
+   compiled a second time for AVX-512 (x86-64-v4) and the processor picks its copy when the library
+   is loaded (the library stays portable; without fused multiply-adds, so both copies give the same
+   bits): 30 % less time per factorisation of 87 unknowns (benchmarks/RESULTS.md, 2026-11-29 19:00).
+   The solve, called once per Newton iteration, stays one copy that the step can inline. */
 #if defined(__GNUC__) && !defined(__clang__)
 #define VECTORISED __attribute__((optimize("O3")))
+#if __GNUC__ >= 11 && defined(__x86_64__) && defined(__GLIBC__)
+#define FACTOR_CLONES __attribute__((optimize("O3", "fp-contract=off"), target_clones("arch=x86-64-v4", "default")))
+#else
+#define FACTOR_CLONES VECTORISED
+#endif
 #else
 #define VECTORISED
+#define FACTOR_CLONES
 #endif
-VECTORISED static void factor(double *restrict lu, int *restrict piv) {
+FACTOR_CLONES static void factor(double *restrict lu, int *restrict piv) {
   for (int i = 0; i < NU; i++) for (int j = i + 1; j < NU; j++) {
     const double t = lu[i*NU + j]; lu[i*NU + j] = lu[j*NU + i]; lu[j*NU + i] = t; }
   for (int k = 0; k < NU; k++) {
@@ -444,7 +513,8 @@ VECTORISED static void lu_solve(const double *restrict lu, const int *restrict p
 static double fd_step(double z) { return (z + 1.4901161193847656e-08*fmax(1.0, fabs(z))) - z; }
 
 /* Newton's matrix from per-stage blocks F_x = ∂f/∂x, G_x = ∂g/∂x (at stage k) and Φ_x = ∂φ/∂x
-   (at (Q_i, p̃_i)), by forward differences, then factorised:
+   (at (Q_i, p̃_i)): those in p and λ exact (model_derivatives_pl), those in q by forward
+   differences; then factorised:
      (1) r_q,i:  δ_ik I − h a_ik F_q,        −h a_ik F_p,              0
      (2) r_p,i:  −h â_ik G_q,                δ_ik I − h â_ik G_p,      −â_ik G_λ
      (3) r_φ,i:  δ_ik Φ_q + h a_ik Φ_p G_q,  h a_ik Φ_p G_p,           a_ik Φ_p G_λ
@@ -455,28 +525,25 @@ static void newton_matrix(const Tab *tb, double t0, double h, const double *q0, 
                           const double *k, const double *x, Blocks *bl, double *lu, int *piv) {
   double Q[S][NQ], P[S][NQ], L[S][NM], V[S][NQ], W[S][NQ];
   stages(tb, t0, h, q0, lam1, k, x, Q, P, L, V, W);
-  for (int j = 0; j < S; j++) {
-    double z[2*NQ + NM], v1[NQ], w1[NQ];
-    memcpy(z, Q[j], sizeof(double)*NQ); memcpy(z + NQ, P[j], sizeof(double)*NQ); memcpy(z + 2*NQ, L[j], sizeof(double)*NM);
-    for (int c = 0; c < 2*NQ + NM; c++) {
+  for (int j = 0; j < S; j++) {   /* Φ_p at stage j's (t, q) is that of the constraint rows i = j */
+    const double tj = t0 + tb->C[j]*h;
+    double z[NQ], v1[NQ], w1[NQ];
+    model_derivatives_pl(tj, Q[j], P[j], L[j], k, bl->fp[j], bl->gp[j], bl->gl[j], bl->pp[j]);
+    memcpy(z, Q[j], sizeof z);
+    for (int c = 0; c < NQ; c++) {
       const double zc = z[c], dz = fd_step(zc);
-      z[c] = zc + dz; model_fg(t0 + tb->C[j]*h, z, z + NQ, z + 2*NQ, k, v1, w1); z[c] = zc;
-      for (int r = 0; r < NQ; r++) {
-        const double dv = (v1[r] - V[j][r]) / dz, dw = (w1[r] - W[j][r]) / dz;
-        if (c < NQ) { bl->fq[j][r][c] = dv; bl->gq[j][r][c] = dw; }
-        else if (c < 2*NQ) { bl->fp[j][r][c - NQ] = dv; bl->gp[j][r][c - NQ] = dw; }
-        else bl->gl[j][r][c - 2*NQ] = dw;
-      }
+      z[c] = zc + dz; model_fg(tj, z, P[j], L[j], k, v1, w1, NULL); z[c] = zc;
+      for (int r = 0; r < NQ; r++) { bl->fq[j][r][c] = (v1[r] - V[j][r]) / dz; bl->gq[j][r][c] = (w1[r] - W[j][r]) / dz; }
     }
   }
   for (int i = 1; i < S; i++) {
-    double z[2*NQ], f0[NM], f1[NM];
-    memcpy(z, Q[i], sizeof(double)*NQ); p_tilde(tb, i, h, p0, W, z + NQ);
-    model_phi(t0 + tb->C[i]*h, z, z + NQ, k, f0);
-    for (int c = 0; c < 2*NQ; c++) {
+    double z[NQ], pt[NQ], f0[NM], f1[NM];
+    memcpy(z, Q[i], sizeof z); p_tilde(tb, i, h, p0, W, pt);
+    model_phi(t0 + tb->C[i]*h, z, pt, k, f0);
+    for (int c = 0; c < NQ; c++) {
       const double zc = z[c], dz = fd_step(zc);
-      z[c] = zc + dz; model_phi(t0 + tb->C[i]*h, z, z + NQ, k, f1); z[c] = zc;
-      for (int r = 0; r < NM; r++) { if (c < NQ) bl->pq[i][r][c] = (f1[r] - f0[r]) / dz; else bl->pp[i][r][c - NQ] = (f1[r] - f0[r]) / dz; }
+      z[c] = zc + dz; model_phi(t0 + tb->C[i]*h, z, pt, k, f1); z[c] = zc;
+      for (int r = 0; r < NM; r++) bl->pq[i][r][c] = (f1[r] - f0[r]) / dz;
     }
   }
   memset(lu, 0, sizeof(double)*NU*NU);

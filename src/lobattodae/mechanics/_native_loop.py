@@ -145,9 +145,9 @@ XLA_FFI_Error* lobattodae_attempt(XLA_FFI_CallFrame* frame) {
     memcpy(qm, q0, sizeof(double)*NQ); memcpy(pm, p0, sizeof(double)*NQ); memcpy(lm, start, sizeof(double)*NM);
   }
   model_lambda(t0 + h, qw, pw, k, hid_w); model_lambda(t0 + h, q1, p1, k, hid_1);
-  model_fg(t0 + h, qw, pw, hid_w, k, fields, fields + NQ);
-  model_fg(t0 + h, q1, p1, hid_1, k, fields + 2*NQ, fields + 3*NQ);
-  model_fg(t0 + h, q1, p1, hid_w, k, fields + 4*NQ, fields + 5*NQ);
+  model_fg(t0 + h, qw, pw, hid_w, k, fields, fields + NQ, NULL);
+  model_fg(t0 + h, q1, p1, hid_1, k, fields + 2*NQ, fields + 3*NQ, NULL);
+  model_fg(t0 + h, q1, p1, hid_w, k, fields + 4*NQ, fields + 5*NQ, NULL);
   if (!result) reals[2] = max_abs_diff(l1, hid_1, NM);
   hs->whole = nw->whole.hs; hs->half = nw->half.hs;
   ints[0] = result; ints[1] = (int)stats[0]; ints[2] = (int)stats[1]; ints[3] = whole_failed;
