@@ -461,14 +461,15 @@ static void residual(const Tab *tb, double t0, double h, const double *q0, const
    every update run over contiguous memory. Both are compiled at -O3 by gcc (vectorised; the rest
    of the program stays at -O2, which keeps a large model's compilation short): with the column order,
    18-24 % less time per error-controlled attempt on the falling disk (s = 5, 6), 20 % on the
-   sleigh (benchmarks/RESULTS.md, 2026-11-29 14:50). With gcc on x86-64 Linux the factorisation is
-   compiled a second time for AVX-512 (x86-64-v4) and the processor picks its copy when the library
-   is loaded (the library stays portable; without fused multiply-adds, so both copies give the same
-   bits): 30 % less time per factorisation of 87 unknowns (benchmarks/RESULTS.md, 2026-11-29 19:00).
-   The solve, called once per Newton iteration, stays one copy that the step can inline. */
+   sleigh (benchmarks/RESULTS.md, 2026-11-29 14:50). With gcc on x86-64 Linux and 40 unknowns or
+   more the factorisation is compiled a second time for AVX-512 (x86-64-v4) and the processor picks
+   its copy when the library is loaded (the library stays portable; without fused multiply-adds, so
+   both copies give the same bits): 30 % less time per factorisation of 87 unknowns, 24 % of 67,
+   6-7 % more at 29 and 36 (dense random matrices, benchmarks/lu_copies.py; RESULTS.md, 2026-11-29
+   19:40). The solve, called once per Newton iteration, stays one copy that the step can inline. */
 #if defined(__GNUC__) && !defined(__clang__)
 #define VECTORISED __attribute__((optimize("O3")))
-#if __GNUC__ >= 11 && defined(__x86_64__) && defined(__GLIBC__)
+#if __GNUC__ >= 11 && defined(__x86_64__) && defined(__GLIBC__) && NU >= 40
 #define FACTOR_CLONES __attribute__((optimize("O3", "fp-contract=off"), target_clones("arch=x86-64-v4", "default")))
 #else
 #define FACTOR_CLONES VECTORISED
