@@ -466,7 +466,7 @@ static void residual(const Tab *tb, double t0, double h, const double *q0, const
    its copy when the library is loaded (the library stays portable; without fused multiply-adds, so
    both copies give the same bits): 30 % less time per factorisation of 87 unknowns, 24 % of 67,
    6-7 % more at 29 and 36 (dense random matrices, benchmarks/lu_copies.py; RESULTS.md, 2026-11-29
-   19:40). The solve, called once per Newton iteration, stays one copy that the step can inline. */
+   18:50). The solve, called once per Newton iteration, stays one copy that the step can inline. */
 #if defined(__GNUC__) && !defined(__clang__)
 #define VECTORISED __attribute__((optimize("O3")))
 #if __GNUC__ >= 11 && defined(__x86_64__) && defined(__GLIBC__) && NU >= 40
