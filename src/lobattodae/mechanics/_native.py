@@ -268,37 +268,43 @@ def model_source(model) -> str:
 
 
 _SPD_SOLVE_C = r"""
-/* M x = b for symmetric positive definite M (n x n row-major, overwritten): elimination without pivoting */
-static void spd_solve(int n, double *mm, double *b) {
+/* M X = B for symmetric positive definite M (n x n row-major, overwritten) and the m columns of
+   B (n x m row-major, overwritten by X): elimination without pivoting; each column takes the same
+   operations in the same order as it would alone */
+static void spd_solve_columns(int n, double *mm, double *b, int m) {
   for (int kk = 0; kk < n; kk++) {
     const double inv = 1.0 / mm[kk*n + kk];
     for (int i = kk + 1; i < n; i++) {
       const double fct = mm[i*n + kk] * inv;
       if (fct == 0.0) continue;
       for (int j = kk + 1; j < n; j++) mm[i*n + j] -= fct * mm[kk*n + j];
-      b[i] -= fct * b[kk];
+      for (int c = 0; c < m; c++) b[i*m + c] -= fct * b[kk*m + c];
     }
   }
-  for (int i = n - 1; i >= 0; i--) {
-    double sum = b[i];
-    for (int j = i + 1; j < n; j++) sum -= mm[i*n + j] * b[j];
-    b[i] = sum / mm[i*n + i];
+  for (int i = n - 1; i >= 0; i--) for (int c = 0; c < m; c++) {
+    double sum = b[i*m + c];
+    for (int j = i + 1; j < n; j++) sum -= mm[i*n + j] * b[j*m + c];
+    b[i*m + c] = sum / mm[i*n + i];
   }
 }
+
+/* M x = b (one column) */
+static void spd_solve(int n, double *mm, double *b) { spd_solve_columns(n, mm, b, 1); }
 """
 
 _LAMBDA_C = r"""
 /* λ(t, q, p) from the hidden constraint: (μ M⁻¹ μᵀ) λ = −(μ M⁻¹ b + d) */
 static void model_lambda(double t, const double *q, const double *p, const double *k, double *lam) {
-  double b[NQ], d[NM], mu[NM*NQ], mo[NQ*NQ], mm[NQ*NQ], u[NQ], w[NM][NQ], sm[NM*NM];
+  enum { W = NM + 1 };   /* the columns (b, μ_1ᵀ, ..., μ_mᵀ), solved at once: u = M⁻¹ b, w_l = M⁻¹ μ_lᵀ */
+  double b[NQ], d[NM], mu[NM*NQ], mo[NQ*NQ], x[NQ*W], sm[NM*NM];
   model_lambda_parts(t, q, p, k, b, d, mu, mo);
-  memcpy(mm, mo, sizeof mm); memcpy(u, b, sizeof u); spd_solve(NQ, mm, u);
-  for (int j = 0; j < NM; j++) { memcpy(mm, mo, sizeof mm); memcpy(w[j], mu + j*NQ, sizeof w[j]); spd_solve(NQ, mm, w[j]); }
+  for (int c = 0; c < NQ; c++) { x[c*W] = b[c]; for (int l = 0; l < NM; l++) x[c*W + 1 + l] = mu[l*NQ + c]; }
+  spd_solve_columns(NQ, mo, x, W);
   for (int j = 0; j < NM; j++) {
     double r = 0.0;
-    for (int c = 0; c < NQ; c++) r += mu[j*NQ + c] * u[c];
+    for (int c = 0; c < NQ; c++) r += mu[j*NQ + c] * x[c*W];
     lam[j] = -(r + d[j]);
-    for (int l = 0; l < NM; l++) { double a = 0.0; for (int c = 0; c < NQ; c++) a += mu[j*NQ + c] * w[l][c]; sm[j*NM + l] = a; }
+    for (int l = 0; l < NM; l++) { double a = 0.0; for (int c = 0; c < NQ; c++) a += mu[j*NQ + c] * x[c*W + 1 + l]; sm[j*NM + l] = a; }
   }
   spd_solve(NM, sm, lam);
 }
@@ -314,23 +320,8 @@ static void model_derivatives_pl(double t, const double *q, const double *p, con
   double v[NQ], w[NQ], gv[NQ*NQ], mo[NQ*NQ], mu[NM*NQ];
   model_fg(t, q, p, lam, k, v, w, gv);
   model_mass_mu(t, q, k, mo, mu);
-  for (int kk = 0; kk < NQ; kk++) {   /* M⁻¹ by spd_solve's elimination, all columns of I at once */
-    for (int c = 0; c < NQ; c++) fp[kk][c] = kk == c;
-  }
-  for (int kk = 0; kk < NQ; kk++) {
-    const double inv = 1.0 / mo[kk*NQ + kk];
-    for (int i = kk + 1; i < NQ; i++) {
-      const double fct = mo[i*NQ + kk] * inv;
-      if (fct == 0.0) continue;
-      for (int j = kk + 1; j < NQ; j++) mo[i*NQ + j] -= fct * mo[kk*NQ + j];
-      for (int c = 0; c < NQ; c++) fp[i][c] -= fct * fp[kk][c];
-    }
-  }
-  for (int i = NQ - 1; i >= 0; i--) for (int c = 0; c < NQ; c++) {
-    double sum = fp[i][c];
-    for (int j = i + 1; j < NQ; j++) sum -= mo[i*NQ + j] * fp[j][c];
-    fp[i][c] = sum / mo[i*NQ + i];
-  }
+  for (int r = 0; r < NQ; r++) for (int c = 0; c < NQ; c++) fp[r][c] = r == c;
+  spd_solve_columns(NQ, mo, &fp[0][0], NQ);   /* M⁻¹ */
   for (int r = 0; r < NQ; r++) {
     for (int c = 0; c < NQ; c++) { double x = 0.0; for (int e = 0; e < NQ; e++) x += gv[r*NQ + e]*fp[e][c]; gp[r][c] = x; }
     for (int c = 0; c < NM; c++) gl[r][c] = mu[c*NQ + r];
