@@ -513,8 +513,8 @@ static double fd_step(double z) { return (z + 1.4901161193847656e-08*fmax(1.0, f
    (columns Q_k, P_k, Z_k; lobattodae._stage_equations.assemble_jacobian) */
 typedef struct { double fq[S][NQ][NQ], fp[S][NQ][NQ], gq[S][NQ][NQ], gp[S][NQ][NQ], gl[S][NQ][NM], pq[S][NM][NQ], pp[S][NM][NQ]; } Blocks;
 
-static void newton_matrix(const Tab *tb, double t0, double h, const double *q0, const double *p0, const double *lam1,
-                          const double *k, const double *x, Blocks *bl, double *lu, int *piv) {
+static void newton_blocks(const Tab *tb, double t0, double h, const double *q0, const double *p0, const double *lam1,
+                          const double *k, const double *x, Blocks *bl) {
   double Q[S][NQ], P[S][NQ], L[S][NM], V[S][NQ], W[S][NQ];
   stages(tb, t0, h, q0, lam1, k, x, Q, P, L, V, W);
   for (int j = 0; j < S; j++) {   /* Φ_p at stage j's (t, q) is that of the constraint rows i = j */
@@ -538,6 +538,10 @@ static void newton_matrix(const Tab *tb, double t0, double h, const double *q0, 
       for (int r = 0; r < NM; r++) bl->pq[i][r][c] = (f1[r] - f0[r]) / dz;
     }
   }
+}
+
+/* Newton's matrix of step size h from the blocks, factorised */
+static void newton_assemble(const Tab *tb, double h, const Blocks *bl, double *lu, int *piv) {
   memset(lu, 0, sizeof(double)*NU*NU);
   for (int i = 1; i < S; i++) for (int r = 0; r < NQ; r++) {                                  /* (1) */
     double *row = lu + (OQ + (i - 1)*NQ + r)*NU;
@@ -579,6 +583,12 @@ static void newton_matrix(const Tab *tb, double t0, double h, const double *q0, 
   factor(lu, piv);
 }
 
+static void newton_matrix(const Tab *tb, double t0, double h, const double *q0, const double *p0, const double *lam1,
+                          const double *k, const double *x, Blocks *bl, double *lu, int *piv) {
+  newton_blocks(tb, t0, h, q0, p0, lam1, k, x, bl);
+  newton_assemble(tb, h, bl, lu, piv);
+}
+
 /* The predictor's memory: the last step's stage slopes, what the plain extrapolation missed on
    them, and that step's size (an error-controlled run selects it back after a rejected attempt). */
 typedef struct {
@@ -591,8 +601,17 @@ typedef struct {
 typedef struct {
   double lu[NU*NU]; int piv[NU]; int have_lu; double h_lu, floor_;
   History hs;
-  Blocks blocks;
+  Blocks blocks; double blocks_t, blocks_h; int have_blocks;   /* the step the blocks were made in */
 } Solver;
+
+/* l_j(tau), the Lagrange basis of the nodes c_first..c_s (the others 0) */
+static void basis_from(const Tab *tb, int first, double tau, double *l) {
+  for (int j = 0; j < S; j++) {
+    double v = j >= first;
+    for (int m = first; m < S && v != 0.0; m++) if (m != j) v *= (tau - tb->C[m]) / (tb->C[j] - tb->C[m]);
+    l[j] = v;
+  }
+}
 
 /* l_j(tau), the Lagrange basis of the nodes c */
 static void basis(const Tab *tb, double tau, double *l) {
@@ -648,6 +667,7 @@ static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxi
     if (!sv->have_lu) {
       newton_matrix(tb, t, h, q, p, lam1, k, x, &sv->blocks, sv->lu, sv->piv);
       sv->have_lu = 1; sv->h_lu = h; fresh = 1; stats[1]++;
+      sv->have_blocks = 1; sv->blocks_t = t; sv->blocks_h = h;
     }
     residual(tb, t, h, q, p, lam1, k, x, dx);
     double rn = 0.0;

@@ -16,8 +16,9 @@ The steps are those of the JAX path up to where Newton stops below its tolerance
 
 **State.** The loop carries the handler's memory as two opaque float64 buffers: Newton's
 matrices (LU factors, the step sizes and round-off levels they were made with; under step
-doubling one set for the whole step and one for the half steps), kept from every attempt whatever became of it, as the
-JAX path keeps its Jacobian factorisation; and the predictors' histories (the last stage slopes
+doubling one set for the whole step and one for the half steps, the half steps' made from the
+whole step's blocks where it needed a new matrix: ``half_matrix`` in the C below), kept from every
+attempt whatever became of it, as the JAX path keeps its Jacobian factorisation; and the predictors' histories (the last stage slopes
 and their correction), selected back after a rejected attempt like the JAX state
 (:meth:`after_rejection`), together with the compensation of the summed step ends.
 
@@ -61,6 +62,29 @@ long attempt_newton_doubles(void) { return (long)((sizeof(AttemptNewton) + 7) / 
 long attempt_history_doubles(void) { return (long)((sizeof(AttemptHistory) + 7) / 8); }
 long step_newton_doubles(void) { return (long)((sizeof(Solver) + 7) / 8); }
 long step_history_doubles(void) { return (long)((sizeof(History) + 7) / 8); }
+
+/* A half step's Newton matrix from the whole step's blocks: those of its stages at
+   tau_j = offset + c_j/2 of the whole step interpolated from the whole step's (Lagrange over its
+   nodes c; the constraint rows' over c_2..c_s, where they are made), then assembled with h/2 and
+   factorised: no differences. Made where the whole step of the same attempt needed a new matrix
+   (its kept one was stale there, and so would the half steps' be): on the falling disk 9-13 %
+   less time per error-controlled run, Andrews' squeezer 5-15 %, the sleigh the same
+   (benchmarks/RESULTS.md, 2026-11-29 19:45). It starts as a kept matrix, under the rules of one. */
+static void half_matrix(const Tab *tb, const Solver *whole, double offset, double h_half, Solver *half) {
+  Blocks *hb = &half->blocks; const Blocks *wb = &whole->blocks;
+  for (int j = 0; j < S; j++) {
+    const double tau = offset + 0.5*tb->C[j];
+    double l[S], lc[S];
+    basis_from(tb, 0, tau, l); basis_from(tb, 1, tau, lc);
+#define INTERP(field, rows, cols, w) for (int r = 0; r < rows; r++) for (int c = 0; c < cols; c++) { \
+      double a = 0.0; for (int kk = 0; kk < S; kk++) a += w[kk]*wb->field[kk][r][c]; hb->field[j][r][c] = a; }
+    INTERP(fq, NQ, NQ, l) INTERP(fp, NQ, NQ, l) INTERP(gq, NQ, NQ, l) INTERP(gp, NQ, NQ, l) INTERP(gl, NQ, NM, l)
+    INTERP(pq, NM, NQ, lc) INTERP(pp, NM, NQ, lc)
+#undef INTERP
+  }
+  newton_assemble(tb, h_half, hb, half->lu, half->piv);
+  half->have_lu = 1; half->h_lu = h_half; half->have_blocks = 0;
+}
 
 static double max_abs_diff(const double *a, const double *b, int n) {
   double d = 0.0; for (int j = 0; j < n; j++) d = fmax(d, fabs(a[j] - b[j])); return d;
@@ -123,6 +147,8 @@ XLA_FFI_Error* lobattodae_attempt(XLA_FFI_CallFrame* frame) {
   else {
     double comp_h[2*NQ];
     memcpy(comp_h, comp, sizeof comp_h);
+    const int interpolate = nw->whole.have_blocks && nw->whole.blocks_t == t0 && nw->whole.blocks_h == h;
+    if (interpolate) { half_matrix(&tb, &nw->whole, 0.0, 0.5*h, &nw->half); stats[1]++; }
     result = step(&nw->half, &tb, extrapolate, tol, maxit, t0, 0.5*h, q0, p0, start, comp_h, k, qm, pm, lm, &rn, stats);
     res_max = fmax(res_max, rn);
     if (!result) {
@@ -130,6 +156,7 @@ XLA_FFI_Error* lobattodae_attempt(XLA_FFI_CallFrame* frame) {
       memcpy(Lm, nw->half.hs.Lh, sizeof(double)*S*NM);
       model_lambda(t0 + 0.5*h, qm, pm, k, hid_m);
       reals[1] = max_abs_diff(lm, hid_m, NM);
+      if (interpolate) { half_matrix(&tb, &nw->whole, 0.5, 0.5*h, &nw->half); stats[1]++; }
       result = step(&nw->half, &tb, extrapolate, tol, maxit, t0 + 0.5*h, 0.5*h, qm, pm, consistent ? hid_m : lm,
                     comp_h, k, q1, p1, l1, &rn, stats);
       res_max = fmax(res_max, rn);
