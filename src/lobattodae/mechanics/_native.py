@@ -314,11 +314,11 @@ static void model_lambda(double t, const double *q, const double *p, const doubl
 _DERIVATIVES_C = r"""
 /* The exact derivatives of f, g and φ in p and λ at (t, q, p, λ), which need no differences: with
    v = f = M⁻¹(p − a), g = g0(t, q, v) + μᵀλ and φ = μ v + ν,
-     ∂f/∂p = M⁻¹,   ∂g/∂p = (∂g0/∂v) M⁻¹,   ∂g/∂λ = μᵀ,   ∂φ/∂p = μ M⁻¹   (∂f/∂λ = 0) */
-static void model_derivatives_pl(double t, const double *q, const double *p, const double *lam, const double *k,
+     ∂f/∂p = M⁻¹,   ∂g/∂p = (∂g0/∂v) M⁻¹,   ∂g/∂λ = μᵀ,   ∂φ/∂p = μ M⁻¹   (∂f/∂λ = 0),
+   from gv = ∂g0/∂v there (model_fg's last output) */
+static void model_derivatives_pl(double t, const double *q, const double *k, const double *gv,
                                  double fp[NQ][NQ], double gp[NQ][NQ], double gl[NQ][NM], double pp[NM][NQ]) {
-  double v[NQ], w[NQ], gv[NQ*NQ], mo[NQ*NQ], mu[NM*NQ];
-  model_fg(t, q, p, lam, k, v, w, gv);
+  double mo[NQ*NQ], mu[NM*NQ];
   model_mass_mu(t, q, k, mo, mu);
   for (int r = 0; r < NQ; r++) for (int c = 0; c < NQ; c++) fp[r][c] = r == c;
   spd_solve_columns(NQ, mo, &fp[0][0], NQ);   /* M⁻¹ */
@@ -332,7 +332,9 @@ static void model_derivatives_pl(double t, const double *q, const double *p, con
 
 /* model_derivatives_pl for a caller outside the program (the tests): out = (fp, gp, gl, pp), row-major */
 void derivatives_pl(double t, const double *q, const double *p, const double *lam, const double *k, double *out) {
-  model_derivatives_pl(t, q, p, lam, k, (double (*)[NQ])out, (double (*)[NQ])(out + NQ*NQ),
+  double v[NQ], w[NQ], gv[NQ*NQ];
+  model_fg(t, q, p, lam, k, v, w, gv);
+  model_derivatives_pl(t, q, k, gv, (double (*)[NQ])out, (double (*)[NQ])(out + NQ*NQ),
                        (double (*)[NM])(out + 2*NQ*NQ), (double (*)[NQ])(out + 2*NQ*NQ + NQ*NM));
 }
 """
@@ -413,15 +415,17 @@ _STEP_C = r"""
 typedef struct { double A[S][S], AH[S][S], B[S], C[S]; } Tab;   /* IIIA a_ij, IIIB â_ij, b, c */
 
 /* The stages encoded in x = (Q_2..Q_s, P_1..P_s, Z_2..Z_s), Q_1 = q_0, Λ_1 = lam1, Λ_j = Z_j / h,
-   and their slopes V_j = f(t_j, Q_j, P_j), W_j = g(t_j, Q_j, P_j, Λ_j), t_j = t_0 + c_j h. */
+   and their slopes V_j = f(t_j, Q_j, P_j), W_j = g(t_j, Q_j, P_j, Λ_j), t_j = t_0 + c_j h (and,
+   where GV is not NULL, ∂g0/∂v there). */
 static void stages(const Tab *tb, double t0, double h, const double *q0, const double *lam1, const double *k,
-                   const double *x, double Q[S][NQ], double P[S][NQ], double L[S][NM], double V[S][NQ], double W[S][NQ]) {
+                   const double *x, double Q[S][NQ], double P[S][NQ], double L[S][NM], double V[S][NQ], double W[S][NQ],
+                   double GV[S][NQ*NQ]) {
   memcpy(Q[0], q0, sizeof(double)*NQ);
   for (int i = 1; i < S; i++) memcpy(Q[i], x + OQ + (i - 1)*NQ, sizeof(double)*NQ);
   for (int i = 0; i < S; i++) memcpy(P[i], x + OP + i*NQ, sizeof(double)*NQ);
   memcpy(L[0], lam1, sizeof(double)*NM);
   for (int i = 1; i < S; i++) for (int j = 0; j < NM; j++) L[i][j] = x[OZ + (i - 1)*NM + j] / h;
-  for (int j = 0; j < S; j++) model_fg(t0 + tb->C[j]*h, Q[j], P[j], L[j], k, V[j], W[j], NULL);
+  for (int j = 0; j < S; j++) model_fg(t0 + tb->C[j]*h, Q[j], P[j], L[j], k, V[j], W[j], GV ? GV[j] : NULL);
 }
 
 /* p̃_i = p_0 + h Σ_j a_ij W_j (the IIIA momenta of row (3)) */
@@ -436,7 +440,7 @@ static void p_tilde(const Tab *tb, int i, double h, const double *p0, double W[S
 static void residual(const Tab *tb, double t0, double h, const double *q0, const double *p0, const double *lam1,
                      const double *k, const double *x, double *r) {
   double Q[S][NQ], P[S][NQ], L[S][NM], V[S][NQ], W[S][NQ];
-  stages(tb, t0, h, q0, lam1, k, x, Q, P, L, V, W);
+  stages(tb, t0, h, q0, lam1, k, x, Q, P, L, V, W, NULL);
   int o = 0;
   for (int i = 1; i < S; i++) for (int c = 0; c < NQ; c++) {
     double a = 0.0; for (int j = 0; j < S; j++) a += tb->A[i][j]*V[j][c];
@@ -515,12 +519,12 @@ typedef struct { double fq[S][NQ][NQ], fp[S][NQ][NQ], gq[S][NQ][NQ], gp[S][NQ][N
 
 static void newton_blocks(const Tab *tb, double t0, double h, const double *q0, const double *p0, const double *lam1,
                           const double *k, const double *x, Blocks *bl) {
-  double Q[S][NQ], P[S][NQ], L[S][NM], V[S][NQ], W[S][NQ];
-  stages(tb, t0, h, q0, lam1, k, x, Q, P, L, V, W);
+  double Q[S][NQ], P[S][NQ], L[S][NM], V[S][NQ], W[S][NQ], GV[S][NQ*NQ];
+  stages(tb, t0, h, q0, lam1, k, x, Q, P, L, V, W, GV);
   for (int j = 0; j < S; j++) {   /* Φ_p at stage j's (t, q) is that of the constraint rows i = j */
     const double tj = t0 + tb->C[j]*h;
     double z[NQ], v1[NQ], w1[NQ];
-    model_derivatives_pl(tj, Q[j], P[j], L[j], k, bl->fp[j], bl->gp[j], bl->gl[j], bl->pp[j]);
+    model_derivatives_pl(tj, Q[j], k, GV[j], bl->fp[j], bl->gp[j], bl->gl[j], bl->pp[j]);
     memcpy(z, Q[j], sizeof z);
     for (int c = 0; c < NQ; c++) {
       const double zc = z[c], dz = fd_step(zc);
@@ -604,20 +608,11 @@ typedef struct {
   Blocks blocks; double blocks_t, blocks_h; int have_blocks;   /* the step the blocks were made in */
 } Solver;
 
-/* l_j(tau), the Lagrange basis of the nodes c_first..c_s (the others 0) */
-static void basis_from(const Tab *tb, int first, double tau, double *l) {
+/* l_j(tau), the Lagrange basis of the nodes c_first..c_s (l_j = 0 for the nodes before) */
+static void basis(const Tab *tb, int first, double tau, double *l) {
   for (int j = 0; j < S; j++) {
     double v = j >= first;
-    for (int m = first; m < S && v != 0.0; m++) if (m != j) v *= (tau - tb->C[m]) / (tb->C[j] - tb->C[m]);
-    l[j] = v;
-  }
-}
-
-/* l_j(tau), the Lagrange basis of the nodes c */
-static void basis(const Tab *tb, double tau, double *l) {
-  for (int j = 0; j < S; j++) {
-    double v = 1.0;
-    for (int m = 0; m < S; m++) if (m != j) v *= (tau - tb->C[m]) / (tb->C[j] - tb->C[m]);
+    for (int m = first; m < S; m++) if (m != j) v *= (tau - tb->C[m]) / (tb->C[j] - tb->C[m]);
     l[j] = v;
   }
 }
@@ -635,7 +630,7 @@ static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxi
        missed one step before; Q = q_0 + h A V, P = p_0 + h Â W, Z = h Λ */
     const double on = sv->hs.have_corr ? 1.0 : 0.0;
     for (int i = 0; i < S; i++) {
-      double l[S]; basis(tb, 1.0 + tb->C[i]*h/sv->hs.h_prev, l);
+      double l[S]; basis(tb, 0, 1.0 + tb->C[i]*h/sv->hs.h_prev, l);
       for (int c = 0; c < NQ; c++) {
         double a = 0.0, b = 0.0;
         for (int j = 0; j < S; j++) { a += l[j]*sv->hs.Vh[j][c]; b += l[j]*sv->hs.Wh[j][c]; }
@@ -702,7 +697,7 @@ static int step(Solver *sv, const Tab *tb, int extrapolate, double tol, int maxi
   /* (4) q_1 = q_0 + h Σ_j b_j V_j, p_1 = p_0 + h Σ_j b_j W_j, summed with compensation
      (TwoSum: comp carries what y_1 could not hold); λ_1 = Λ_s */
   double Q[S][NQ], P[S][NQ], L[S][NM], V[S][NQ], W[S][NQ];
-  stages(tb, t, h, q, lam1, k, x, Q, P, L, V, W);
+  stages(tb, t, h, q, lam1, k, x, Q, P, L, V, W, NULL);
   for (int c = 0; c < 2*NQ; c++) {
     double a = 0.0;
     for (int j = 0; j < S; j++) a += tb->B[j]*(c < NQ ? V[j][c] : W[j][c - NQ]);

@@ -68,14 +68,14 @@ long step_history_doubles(void) { return (long)((sizeof(History) + 7) / 8); }
    nodes c; the constraint rows' over c_2..c_s, where they are made), then assembled with h/2 and
    factorised: no differences. Made where the whole step of the same attempt needed a new matrix
    (its kept one was stale there, and so would the half steps' be): on the falling disk 9-13 %
-   less time per error-controlled run, Andrews' squeezer 5-15 %, the sleigh the same
-   (benchmarks/RESULTS.md, 2026-11-29 19:45). It starts as a kept matrix, under the rules of one. */
+   less time per error-controlled run, Andrews' squeezer 5-15 %, the sleigh within the noise at
+   s = 5 and up to 10 % more at s = 6 (benchmarks/RESULTS.md, 2026-11-29 19:45). It starts as a kept matrix, under the rules of one. */
 static void half_matrix(const Tab *tb, const Solver *whole, double offset, double h_half, Solver *half) {
   Blocks *hb = &half->blocks; const Blocks *wb = &whole->blocks;
   for (int j = 0; j < S; j++) {
     const double tau = offset + 0.5*tb->C[j];
     double l[S], lc[S];
-    basis_from(tb, 0, tau, l); basis_from(tb, 1, tau, lc);
+    basis(tb, 0, tau, l); basis(tb, 1, tau, lc);
 #define INTERP(field, rows, cols, w) for (int r = 0; r < rows; r++) for (int c = 0; c < cols; c++) { \
       double a = 0.0; for (int kk = 0; kk < S; kk++) a += w[kk]*wb->field[kk][r][c]; hb->field[j][r][c] = a; }
     INTERP(fq, NQ, NQ, l) INTERP(fp, NQ, NQ, l) INTERP(gq, NQ, NQ, l) INTERP(gp, NQ, NQ, l) INTERP(gl, NQ, NM, l)
