@@ -175,7 +175,7 @@ def _function(name, signature, pre, outputs, symbols, optional=()) -> str:
     if pre:
         lines.append(f"  double mm[{n * n}] = {{{', '.join(_c(e) for e in pre_red[: n * n])}}};")
         lines.append(f"  double vv[{n}] = {{{', '.join(_c(e) for e in pre_red[n * n:])}}};")
-        lines.append(f"  spd_solve({n}, mm, vv);")
+        lines.append("  mass_solve_columns(mm, vv, 1);")
         lines += [f"  const double {x.name} = vv[{i}];" for i, x in enumerate(v) if x in used]
     lines += after
     pos = 0
@@ -191,6 +191,43 @@ def _function(name, signature, pre, outputs, symbols, optional=()) -> str:
             lines.append("  }")
     lines.append("}")
     return "\n".join(lines)
+
+
+#: The most multiply-adds per column for which the mass matrix's solve is written out for its
+#: structure (:func:`mass_solve_source`); a larger one calls the elimination with loops.
+_MASS_SOLVE_UNROLL = 600
+
+
+def mass_solve_source(structure) -> str:
+    """C of ``mass_solve_columns(mm, b, m)``: M X = B for the model's mass matrix (``NQ x NQ``
+    row-major, overwritten) and the ``m`` columns of B (row-major, overwritten by X), the
+    elimination of ``spd_solve_columns`` written out for M's structure (``structure[i][j]``: the
+    entry is not identically zero; fill-in tracked). Skipping the entries that are zero whatever
+    the state changes nothing but the sign of a zero; a matrix with more than
+    :data:`_MASS_SOLVE_UNROLL` multiply-adds per column keeps the loops."""
+    n = len(structure)
+    nz = [[bool(structure[i][j]) or i == j for j in range(n)] for i in range(n)]
+    body, ops = [], 0
+    for k in range(n):
+        rows = [i for i in range(k + 1, n) if nz[i][k]]
+        if rows:
+            body.append(f"  const double inv{k} = 1.0 / mm[{k * n + k}];")
+        for i in rows:
+            cols = [j for j in range(k + 1, n) if nz[k][j]]
+            ops += len(cols) + 1
+            updates = " ".join(f"mm[{i * n + j}] -= f*mm[{k * n + j}];" for j in cols)
+            body.append(f"  {{ const double f = mm[{i * n + k}]*inv{k}; if (f != 0.0) {{ {updates}"
+                        f" for (int c = 0; c < m; c++) b[{i}*m + c] -= f*b[{k}*m + c]; }} }}")
+            for j in cols:
+                nz[i][j] = True
+    for i in reversed(range(n)):
+        terms = "".join(f" x -= mm[{i * n + j}]*b[{j}*m + c];" for j in range(i + 1, n) if nz[i][j])
+        ops += sum(nz[i][i + 1:])
+        body.append(f"  for (int c = 0; c < m; c++) {{ double x = b[{i}*m + c];{terms} b[{i}*m + c] = x / mm[{i * n + i}]; }}")
+    head = "static inline void mass_solve_columns(double *mm, double *b, int m) {"
+    if ops > _MASS_SOLVE_UNROLL:
+        return f"{head} spd_solve_columns(NQ, mm, b, m); }}\n"
+    return "\n".join([head, *body, "}", ""])
 
 
 def model_source(model) -> str:
@@ -263,7 +300,9 @@ def model_source(model) -> str:
             _function("model_psi", "double t, const double *q, const double *k, double *out, double *jac", None,
                       [("out", list(psi)), ("jac", list(psi_q))], symbols),
         ]
-    return (f"#define NQ {n}\n#define NM {m}\n#define NH {nh}\n" + _SPD_SOLVE_C + "\n".join(functions) + "\n"
+    structure = [[M[i, j] != 0 for j in range(n)] for i in range(n)]
+    return (f"#define NQ {n}\n#define NM {m}\n#define NH {nh}\n" + _SPD_SOLVE_C + mass_solve_source(structure)
+            + "\n".join(functions) + "\n"
             + _LAMBDA_C + _DERIVATIVES_C + (_PROJECTION_C if nh else ""))
 
 
@@ -299,7 +338,7 @@ static void model_lambda(double t, const double *q, const double *p, const doubl
   double b[NQ], d[NM], mu[NM*NQ], mo[NQ*NQ], x[NQ*W], sm[NM*NM];
   model_lambda_parts(t, q, p, k, b, d, mu, mo);
   for (int c = 0; c < NQ; c++) { x[c*W] = b[c]; for (int l = 0; l < NM; l++) x[c*W + 1 + l] = mu[l*NQ + c]; }
-  spd_solve_columns(NQ, mo, x, W);
+  mass_solve_columns(mo, x, W);
   for (int j = 0; j < NM; j++) {
     double r = 0.0;
     for (int c = 0; c < NQ; c++) r += mu[j*NQ + c] * x[c*W];
@@ -321,7 +360,7 @@ static void model_derivatives_pl(double t, const double *q, const double *k, con
   double mo[NQ*NQ], mu[NM*NQ];
   model_mass_mu(t, q, k, mo, mu);
   for (int r = 0; r < NQ; r++) for (int c = 0; c < NQ; c++) fp[r][c] = r == c;
-  spd_solve_columns(NQ, mo, &fp[0][0], NQ);   /* M⁻¹ */
+  mass_solve_columns(mo, &fp[0][0], NQ);   /* M⁻¹ */
   for (int r = 0; r < NQ; r++) {
     for (int c = 0; c < NQ; c++) { double x = 0.0; for (int e = 0; e < NQ; e++) x += gv[r*NQ + e]*fp[e][c]; gp[r][c] = x; }
     for (int c = 0; c < NM; c++) gl[r][c] = mu[c*NQ + r];
@@ -364,7 +403,7 @@ static void project_end(double t, double *q, double *p, const double *k) {
   double mo[NQ*NQ], mu[NM*NQ], mm[NQ*NQ], dd[NH][NQ], psi[NH], jac[NH*NQ], kappa[NH], qq[NQ], jd[NH*NH];
   model_mass_mu(t, q, k, mo, mu);
   model_psi(t, q, k, psi, jac);
-  for (int j = 0; j < NH; j++) { memcpy(mm, mo, sizeof mm); memcpy(dd[j], jac + j*NQ, sizeof dd[j]); spd_solve(NQ, mm, dd[j]); }
+  for (int j = 0; j < NH; j++) { memcpy(mm, mo, sizeof mm); memcpy(dd[j], jac + j*NQ, sizeof dd[j]); mass_solve_columns(mm, dd[j], 1); }
   for (int j = 0; j < NH; j++) kappa[j] = 0.0;
   for (int it = 0; it < POSITION_NEWTON_ITERATIONS; it++) {
     for (int c = 0; c < NQ; c++) { double x = 0.0; for (int j = 0; j < NH; j++) x += dd[j][c]*kappa[j]; qq[c] = q[c] + x; }
@@ -378,7 +417,7 @@ static void project_end(double t, double *q, double *p, const double *k) {
   double phi[NM], w[NM][NQ], sm[NM*NM];
   model_mass_mu(t, q, k, mo, mu);
   model_phi(t, q, p, k, phi);
-  for (int j = 0; j < NM; j++) { memcpy(mm, mo, sizeof mm); memcpy(w[j], mu + j*NQ, sizeof w[j]); spd_solve(NQ, mm, w[j]); }
+  for (int j = 0; j < NM; j++) { memcpy(mm, mo, sizeof mm); memcpy(w[j], mu + j*NQ, sizeof w[j]); mass_solve_columns(mm, w[j], 1); }
   for (int a = 0; a < NM; a++) for (int b = 0; b < NM; b++) {
     double x = 0.0; for (int c = 0; c < NQ; c++) x += mu[a*NQ + c]*w[b][c]; sm[a*NM + b] = x; }
   spd_solve(NM, sm, phi);
@@ -451,8 +490,8 @@ static void residual(const Tab *tb, double t0, double h, const double *q0, const
   for (int i = 1; i < S; i++) { double pt[NQ]; p_tilde(tb, i, h, p0, W, pt); model_phi(t0 + tb->C[i]*h, Q[i], pt, k, r + o); o += NM; }
 }
 
-/* LU with partial pivoting in place, and its solve. The matrix comes assembled row by row; factor
-   transposes it once and works on columns (LAPACK's dgetf2 order), so that the pivot search and
+/* LU with partial pivoting in place, and its solve. The matrix is stored by columns (newton_assemble
+   writes it so) and factor works on columns (LAPACK's dgetf2 order), so that the pivot search and
    every update run over contiguous memory. Both are compiled at -O3 by gcc (vectorised; the rest
    of the program stays at -O2, which keeps a large model's compilation short): with the column order,
    18-24 % less time per error-controlled attempt on the falling disk (s = 5, 6), 20 % on the
@@ -473,23 +512,58 @@ static void residual(const Tab *tb, double t0, double h, const double *q0, const
 #define VECTORISED
 #define FACTOR_CLONES
 #endif
+/* The first row i >= k of column c with the largest |c_i| (the pivot of partial pivoting): the
+   largest value first, in eight independent maxima (a reduction in one chain waits on each
+   comparison; the maximum is the same in any order), then its first occurrence: the row the scan
+   that keeps the first maximum picks (a NaN is never chosen; with no finite maximum, k) */
+static inline int pivot_row(const double *restrict c, int k) {
+  double big[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+  int i = k;
+  for (; i + 8 <= NU; i += 8) for (int l = 0; l < 8; l++) { const double a = fabs(c[i + l]); big[l] = a > big[l] ? a : big[l]; }
+  for (; i < NU; i++) { const double a = fabs(c[i]); big[0] = a > big[0] ? a : big[0]; }
+  double top = big[0];
+  for (int l = 1; l < 8; l++) top = big[l] > top ? big[l] : top;
+  for (i = k; i < NU; i++) if (fabs(c[i]) == top) return i;
+  return k;
+}
+
+/* rows k and pv exchanged in every column */
+static inline void swap_rows(double *restrict lu, int k, int pv) {
+  for (int j = 0; j < NU; j++) { double *c = lu + j*NU; const double t = c[k]; c[k] = c[pv]; c[pv] = t; }
+}
+
+/* Pivots two at a time: columns k and k + 1 are factorised first (k + 1 updated by k), then each
+   later column takes both updates in one pass over it (half the passes of one pivot at a time).
+   Every entry gets the same operations in the same order as with one pivot at a time (the row
+   exchange of k + 1 commutes with pivot k's update, which works row by row), so the factors have
+   the same bits. */
 FACTOR_CLONES static void factor(double *restrict lu, int *restrict piv) {
-  for (int i = 0; i < NU; i++) for (int j = i + 1; j < NU; j++) {
-    const double t = lu[i*NU + j]; lu[i*NU + j] = lu[j*NU + i]; lu[j*NU + i] = t; }
-  for (int k = 0; k < NU; k++) {
-    double *restrict ck = lu + k*NU;                 /* column k */
-    int pv = k; double big = fabs(ck[k]);
-    for (int i = k + 1; i < NU; i++) { const double a = fabs(ck[i]); if (a > big) { big = a; pv = i; } }
+  int k = 0;
+  for (; k + 1 < NU; k += 2) {
+    double *restrict c0 = lu + k*NU, *restrict c1 = c0 + NU;   /* columns k, k + 1 */
+    int pv = pivot_row(c0, k);
     piv[k] = pv;
-    if (pv != k) for (int j = 0; j < NU; j++) { double *c = lu + j*NU; const double t = c[k]; c[k] = c[pv]; c[pv] = t; }
-    const double inv = 1.0 / ck[k];
-    for (int i = k + 1; i < NU; i++) ck[i] *= inv;
-    for (int j = k + 1; j < NU; j++) {
+    if (pv != k) swap_rows(lu, k, pv);
+    const double inv0 = 1.0 / c0[k];
+    for (int i = k + 1; i < NU; i++) c0[i] *= inv0;
+    const double g = c1[k];
+    if (g != 0.0) for (int i = k + 1; i < NU; i++) c1[i] -= g*c0[i];
+    pv = pivot_row(c1, k + 1);
+    piv[k + 1] = pv;
+    if (pv != k + 1) swap_rows(lu, k + 1, pv);
+    const double inv1 = 1.0 / c1[k + 1];
+    for (int i = k + 2; i < NU; i++) c1[i] *= inv1;
+    for (int j = k + 2; j < NU; j++) {
       double *restrict cj = lu + j*NU;
-      const double f = cj[k];
-      if (f != 0.0) for (int i = k + 1; i < NU; i++) cj[i] -= f*ck[i];
+      const double f0 = cj[k];
+      if (f0 != 0.0) cj[k + 1] -= f0*c0[k + 1];
+      const double f1 = cj[k + 1];
+      if (f0 != 0.0 && f1 != 0.0) for (int i = k + 2; i < NU; i++) cj[i] = (cj[i] - f0*c0[i]) - f1*c1[i];
+      else if (f0 != 0.0) for (int i = k + 2; i < NU; i++) cj[i] -= f0*c0[i];
+      else if (f1 != 0.0) for (int i = k + 2; i < NU; i++) cj[i] -= f1*c1[i];
     }
   }
+  if (k < NU) piv[k] = k;   /* an odd count: the last pivot is its own row */
 }
 
 VECTORISED static void lu_solve(const double *restrict lu, const int *restrict piv, double *restrict b) {
@@ -544,48 +618,60 @@ static void newton_blocks(const Tab *tb, double t0, double h, const double *q0, 
   }
 }
 
-/* Newton's matrix of step size h from the blocks, factorised */
-static void newton_assemble(const Tab *tb, double h, const Blocks *bl, double *lu, int *piv) {
+/* Newton's matrix of step size h from the blocks, written by columns (factor's order, entry
+   (R, C) at lu[C*NU + R]) and factorised. The constraint rows' products Φ_p,i G_x,k are formed
+   first, each a small matrix product with its columns innermost (so that they vectorise; the sums
+   over e run in the same order as written in (3)) */
+#define AT(R, C) lu[(C)*NU + (R)]
+VECTORISED static void newton_assemble(const Tab *tb, double h, const Blocks *bl, double *lu, int *piv) {
   memset(lu, 0, sizeof(double)*NU*NU);
   for (int i = 1; i < S; i++) for (int r = 0; r < NQ; r++) {                                  /* (1) */
-    double *row = lu + (OQ + (i - 1)*NQ + r)*NU;
+    const int row = OQ + (i - 1)*NQ + r;
     for (int kk = 0; kk < S; kk++) {
       const double ha = h*tb->A[i][kk];
       for (int c = 0; c < NQ; c++) {
-        if (kk) row[OQ + (kk - 1)*NQ + c] = (i == kk && r == c) - ha*bl->fq[kk][r][c];
-        row[OP + kk*NQ + c] = -ha*bl->fp[kk][r][c];
+        if (kk) AT(row, OQ + (kk - 1)*NQ + c) = -ha*bl->fq[kk][r][c];
+        AT(row, OP + kk*NQ + c) = -ha*bl->fp[kk][r][c];
       }
     }
+    AT(row, row) += 1.0;
   }
   for (int i = 0; i < S; i++) for (int r = 0; r < NQ; r++) {                                  /* (2) */
-    double *row = lu + (OP + i*NQ + r)*NU;
+    const int row = OP + i*NQ + r;
     for (int kk = 0; kk < S; kk++) {
       const double ah = tb->AH[i][kk];
       for (int c = 0; c < NQ; c++) {
-        if (kk) row[OQ + (kk - 1)*NQ + c] = -h*ah*bl->gq[kk][r][c];
-        row[OP + kk*NQ + c] = (i == kk && r == c) - h*ah*bl->gp[kk][r][c];
+        if (kk) AT(row, OQ + (kk - 1)*NQ + c) = -h*ah*bl->gq[kk][r][c];
+        AT(row, OP + kk*NQ + c) = -h*ah*bl->gp[kk][r][c];
       }
-      if (kk) for (int c = 0; c < NM; c++) row[OZ + (kk - 1)*NM + c] = -ah*bl->gl[kk][r][c];
+      if (kk) for (int c = 0; c < NM; c++) AT(row, OZ + (kk - 1)*NM + c) = -ah*bl->gl[kk][r][c];
     }
+    AT(row, row) += 1.0;
   }
-  for (int i = 1; i < S; i++) for (int r = 0; r < NM; r++) {                                  /* (3) */
-    double *row = lu + (OZ + (i - 1)*NM + r)*NU;
-    for (int kk = 0; kk < S; kk++) {
-      const double a = tb->A[i][kk];
+  for (int i = 1; i < S; i++) for (int kk = 0; kk < S; kk++) {                                /* (3) */
+    double sq[NM][NQ], sp[NM][NQ], sl[NM][NM];
+    for (int r = 0; r < NM; r++) {
+      for (int c = 0; c < NQ; c++) { sq[r][c] = 0.0; sp[r][c] = 0.0; }
+      for (int c = 0; c < NM; c++) sl[r][c] = 0.0;
+      for (int e = 0; e < NQ; e++) {
+        const double x = bl->pp[i][r][e];
+        for (int c = 0; c < NQ; c++) { sq[r][c] += x*bl->gq[kk][e][c]; sp[r][c] += x*bl->gp[kk][e][c]; }
+        for (int c = 0; c < NM; c++) sl[r][c] += x*bl->gl[kk][e][c];
+      }
+    }
+    const double a = tb->A[i][kk];
+    for (int r = 0; r < NM; r++) {
+      const int row = OZ + (i - 1)*NM + r;
       for (int c = 0; c < NQ; c++) {
-        double sq = 0.0, sp = 0.0;
-        for (int e = 0; e < NQ; e++) { sq += bl->pp[i][r][e]*bl->gq[kk][e][c]; sp += bl->pp[i][r][e]*bl->gp[kk][e][c]; }
-        if (kk) row[OQ + (kk - 1)*NQ + c] = (i == kk ? bl->pq[i][r][c] : 0.0) + h*a*sq;
-        row[OP + kk*NQ + c] = h*a*sp;
+        if (kk) AT(row, OQ + (kk - 1)*NQ + c) = (i == kk ? bl->pq[i][r][c] : 0.0) + h*a*sq[r][c];
+        AT(row, OP + kk*NQ + c) = h*a*sp[r][c];
       }
-      if (kk) for (int c = 0; c < NM; c++) {
-        double sl = 0.0; for (int e = 0; e < NQ; e++) sl += bl->pp[i][r][e]*bl->gl[kk][e][c];
-        row[OZ + (kk - 1)*NM + c] = a*sl;
-      }
+      if (kk) for (int c = 0; c < NM; c++) AT(row, OZ + (kk - 1)*NM + c) = a*sl[r][c];
     }
   }
   factor(lu, piv);
 }
+#undef AT
 
 static void newton_matrix(const Tab *tb, double t0, double h, const double *q0, const double *p0, const double *lam1,
                           const double *k, const double *x, Blocks *bl, double *lu, int *piv) {
