@@ -500,7 +500,10 @@ static void residual(const Tab *tb, double t0, double h, const double *q0, const
    its copy when the library is loaded (the library stays portable; without fused multiply-adds, so
    both copies give the same bits): 30 % less time per factorisation of 87 unknowns, 24 % of 67,
    6-7 % more at 29 and 36 (dense random matrices, benchmarks/lu_copies.py; RESULTS.md, 2026-11-29
-   18:50). The solve, called once per Newton iteration, stays one copy that the step can inline. */
+   18:50; the factorisation has changed since, see newton_assemble and factor). The solve, called once
+   per Newton iteration, has the same two copies under the same condition (2-4 % less time per run
+   on Andrews' squeezer, 67 and 87 unknowns; below 40 unknowns, where it stays one copy, copies of it
+   made the sleigh 3.5 % slower). */
 #if defined(__GNUC__) && !defined(__clang__)
 #define VECTORISED __attribute__((optimize("O3")))
 #if __GNUC__ >= 11 && defined(__x86_64__) && defined(__GLIBC__) && NU >= 40
@@ -566,7 +569,7 @@ FACTOR_CLONES static void factor(double *restrict lu, int *restrict piv) {
   if (k < NU) piv[k] = k;   /* an odd count: the last pivot is its own row */
 }
 
-VECTORISED static void lu_solve(const double *restrict lu, const int *restrict piv, double *restrict b) {
+FACTOR_CLONES static void lu_solve(const double *restrict lu, const int *restrict piv, double *restrict b) {
   for (int k = 0; k < NU; k++) { const double t = b[k]; b[k] = b[piv[k]]; b[piv[k]] = t; }
   for (int j = 0; j < NU; j++) {                     /* L y = P b, column by column */
     const double bj = b[j]; const double *restrict c = lu + j*NU;
