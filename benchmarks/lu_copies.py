@@ -52,12 +52,8 @@ int main(int argc, char **argv) {
 
 
 def factor_source() -> str:
-    """The generator's macros and ``factor``, as they stand in the program."""
-    text = _native._STEP_C
-    start = text.index("#if defined(__GNUC__) && !defined(__clang__)\n#define VECTORISED")
-    body = text.index("FACTOR_CLONES static void factor")
-    end = text.index("\n}\n", body) + 3
-    return text[start:end]
+    """The generator's LU code (macros, ``factor``, ``lu_solve``), as it stands in the program."""
+    return _native._LU_C
 
 
 def time_size(nu: int, copies: bool, count: int, work: str) -> tuple[float, str]:

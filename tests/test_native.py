@@ -339,3 +339,108 @@ def test_newton_s_blocks_in_p_and_lambda_are_the_exact_derivatives(build):
         for name, ours in (("fp", fp), ("gp", gp), ("gl", gl), ("pp", pp)):
             theirs = np.asarray(exact[name])
             assert np.max(np.abs(ours - theirs)) <= 1e-12 * (1 + np.max(np.abs(theirs))), name
+
+
+def _compile_c(tmp_path, name, source):
+    """``source`` as a shared library (the generator's compiler and flags), through ctypes."""
+    import ctypes
+    import subprocess
+
+    c, lib = tmp_path / f"{name}.c", tmp_path / f"{name}.so"
+    c.write_text("#include <math.h>\n#include <string.h>\n" + source)
+    subprocess.run([_native.c_compiler(), *_native.CFLAGS, "-o", str(lib), str(c), "-lm"], check=True)
+    return ctypes.CDLL(str(lib))
+
+
+def _reference_lu(a):
+    """LU with partial pivoting one pivot at a time, in Python floats (the same IEEE operations in
+    the order of LAPACK's dgetf2, zero multipliers skipped): the factors' specification."""
+    n = len(a)
+    a = [list(map(float, row)) for row in a]
+    piv = []
+    for k in range(n):
+        pv, big = k, abs(a[k][k])
+        for i in range(k + 1, n):
+            if abs(a[i][k]) > big:
+                pv, big = i, abs(a[i][k])
+        piv.append(pv)
+        a[k], a[pv] = a[pv], a[k]
+        inv = 1.0 / a[k][k]
+        for i in range(k + 1, n):
+            a[i][k] *= inv
+        for j in range(k + 1, n):
+            f = a[k][j]
+            if f != 0.0:
+                for i in range(k + 1, n):
+                    a[i][j] -= f * a[i][k]
+    return np.array(a), np.array(piv)
+
+
+@pytest.mark.parametrize("nu", [5, 29, 40, 67])
+def test_the_lu_factors_are_those_of_one_pivot_at_a_time(tmp_path, nu):
+    """The native LU (two pivots per pass, a vectorised pivot search, an AVX-512 copy from 40
+    unknowns) gives the bits of the plain algorithm, one pivot at a time, on matrices with many
+    zeros (skipped multipliers) and ties for the pivot; its solve agrees with NumPy's."""
+    import ctypes
+
+    lib = _compile_c(tmp_path, f"lu{nu}", f"#define NU {nu}\n" + _native._LU_C + r"""
+void lu(double *a, int *piv, double *b) { factor(a, piv); lu_solve(a, piv, b); }
+""")
+    pointer = ctypes.POINTER(ctypes.c_double)
+    rng = np.random.default_rng(nu)
+    for trial in range(3):
+        # sparse, nonsingular (a permuted diagonal: pivoting moves rows), with ties for the pivot
+        perm = np.eye(nu)[rng.permutation(nu) if trial else np.arange(nu)]
+        a = rng.normal(size=(nu, nu)) * (rng.random((nu, nu)) < 0.4) + 3.0 * perm
+        a[:, 0] = np.round(a[:, 0] * 2) / 2
+        b = rng.normal(size=nu)
+        factors, piv, x = np.asfortranarray(a.copy()), np.zeros(nu, np.int32), b.copy()
+        lib.lu(factors.ctypes.data_as(pointer), piv.ctypes.data_as(ctypes.POINTER(ctypes.c_int)),
+               x.ctypes.data_as(pointer))  # column-major storage: the Fortran order of `a`
+        ref, ref_piv = _reference_lu(a)
+        assert np.array_equal(piv, ref_piv)
+        assert np.array_equal(factors, ref)
+        assert np.max(np.abs(x - np.linalg.solve(a, b))) <= 1e-11 * (1 + np.max(np.abs(x)))
+
+
+def _spd_with_structure(rng, pattern):
+    n = len(pattern)
+    sym = np.triu(rng.normal(size=(n, n)) * pattern, 1)
+    return sym + sym.T + np.diag(1.0 + np.abs(sym + sym.T).sum(axis=1))  # diagonally dominant
+
+
+@pytest.mark.parametrize("shape", ["diagonal", "blocks", "arrow", "tridiagonal", "dense", "large"])
+def test_the_mass_solve_written_for_its_structure_is_the_elimination(tmp_path, shape):
+    """``mass_solve_columns`` (the elimination written out for M's structure, fill-in included)
+    gives what the loops of ``spd_solve_columns`` give (equal values, one and several columns,
+    also with a structurally nonzero entry that is zero), and solves M X = B."""
+    import ctypes
+
+    n = {"large": 16}.get(shape, 7)
+    pattern = {
+        "diagonal": np.eye(n),
+        "blocks": np.kron(np.eye(4), np.ones((2, 2)))[:n, :n],
+        "arrow": np.eye(n) + (np.add.outer(np.arange(n), np.arange(n)) * 0 + 1) * (
+            (np.arange(n)[:, None] == 0) | (np.arange(n)[None, :] == 0)),
+        "tridiagonal": np.eye(n) + np.eye(n, k=1) + np.eye(n, k=-1),
+        "dense": np.ones((n, n)),
+        "large": np.ones((n, n)),
+    }[shape] != 0
+    source = _native.mass_solve_source(pattern.tolist())
+    assert ("spd_solve_columns(NQ" in source) == (shape == "large")  # a large one keeps the loops
+    lib = _compile_c(tmp_path, shape, f"#define NQ {n}\n" + _native._SPD_SOLVE_C + source + r"""
+void both(double *m1, double *b1, double *m2, double *b2, int m) { mass_solve_columns(m1, b1, m); spd_solve_columns(NQ, m2, b2, m); }
+""")
+    pointer = ctypes.POINTER(ctypes.c_double)
+    rng = np.random.default_rng(7)
+    for cols in (1, 3):
+        for trial in range(3):
+            mm = _spd_with_structure(rng, pattern)
+            if trial == 2 and pattern.sum() > n:  # a structural nonzero that is zero at this state
+                i, j = np.argwhere(np.triu(pattern, 1))[0]
+                mm[i, j] = mm[j, i] = 0.0
+            b = rng.normal(size=(n, cols))
+            m1, b1, m2, b2 = mm.copy(), b.copy(), mm.copy(), b.copy()
+            lib.both(*(x.ctypes.data_as(pointer) for x in (m1, b1, m2, b2)), cols)
+            assert np.all(b1 == b2)
+            assert np.max(np.abs(mm @ b1 - b)) <= 1e-13 * (1 + np.max(np.abs(b)))

@@ -443,8 +443,8 @@ def _constants() -> str:
                    for k, v in values.items())
 
 
-#: The stepping program (after ``#define S``, the model and :func:`_constants`).
-_STEP_C = r"""
+#: The stage equations of the stepping program (after ``#define S``, the model and :func:`_constants`).
+_STAGES_C = r"""
 #include <stdlib.h>
 #define NU ((2*S - 1)*NQ + (S - 1)*NM)
 #define OQ 0
@@ -490,6 +490,10 @@ static void residual(const Tab *tb, double t0, double h, const double *q0, const
   for (int i = 1; i < S; i++) { double pt[NQ]; p_tilde(tb, i, h, p0, W, pt); model_phi(t0 + tb->C[i]*h, Q[i], pt, k, r + o); o += NM; }
 }
 
+"""
+
+#: The LU factorisation of Newton's matrix and its solve (for ``NU`` unknowns, defined before).
+_LU_C = r"""
 /* LU with partial pivoting in place, and its solve. The matrix is stored by columns (newton_assemble
    writes it so) and factor works on columns (LAPACK's dgetf2 order), so that the pivot search and
    every update run over contiguous memory. Both are compiled at -O3 by gcc (vectorised; the rest
@@ -582,6 +586,10 @@ FACTOR_CLONES static void lu_solve(const double *restrict lu, const int *restric
   }
 }
 
+"""
+
+#: The rest of the stepping program: Newton's matrix, the step.
+_STEP_C = r"""
 /* the forward-difference increment that z + δ represents, δ = √ε max(1, |z|) */
 static double fd_step(double z) { return (z + 1.4901161193847656e-08*fmax(1.0, fabs(z))) - z; }
 
@@ -900,7 +908,7 @@ def program_source(model, stages: int) -> str:
     """The whole C program of (model, s): the policies, the model's functions, the step, the run
     and the error-controlled attempt (:mod:`._native_loop`)."""
     return ("#include <math.h>\n#include <string.h>\n" + f"#define S {int(stages)}\n" + _constants()
-            + model_source(model) + _STEP_C + ATTEMPT_C)
+            + model_source(model) + _STAGES_C + _LU_C + _STEP_C + ATTEMPT_C)
 
 
 # ------------------------------------------------------------------------ compile and load
