@@ -150,6 +150,34 @@ def test_nan_in_nested_args_leaf():
         L.validate_initial_values(PARTICLE_K, 0.0, Q3, P3, args=args)
 
 
+@pytest.mark.parametrize(
+    "leaf, shown",
+    [(jnp.asarray(np.nan), "= nan"), (np.float32(np.inf), "= inf"), (jnp.asarray(1j * np.inf), "inf"),
+     (jnp.array([1.0, np.nan], jnp.bfloat16), "1 NaN or inf")],
+)
+def test_non_finite_args_leaf_of_any_inexact_kind_is_named(leaf, shown):
+    """A JAX or NumPy scalar, a complex value and a bfloat16 array: each checked (the scalar
+    fast path included) and named."""
+    with pytest.raises(L.ShapeError) as info:
+        L.validate_initial_values(PARTICLE_K, 0.0, Q3, P3, args={"k": 1.0, "x": leaf})
+    assert "args['x']" in _message(info) and shown in _message(info)
+
+
+def test_args_cache_key_is_jax_s_view_of_each_leaf():
+    """The caches' key of an args leaf (decided once per dtype) is what ``jnp.result_type``
+    says of the leaf itself, for every kind of leaf."""
+    import jax
+
+    from lobattodae._problem_trace import _aval
+
+    leaves = [jnp.asarray(1.0), jnp.asarray(1.0) * 2, jnp.array(1.0, jnp.float32), np.float32(1.0), np.array([1, 2]),
+              np.array([1, 2], np.int8), jnp.asarray(3), np.bool_(True), jnp.array([True]), 1.0, 2, True, 1j,
+              np.complex64(1.0), jnp.array(1.0, jnp.bfloat16), np.array(1, np.uint32)]
+    for leaf in leaves:
+        expected = (np.shape(leaf), jnp.result_type(leaf), not isinstance(leaf, (np.ndarray, np.generic, jax.Array)))
+        assert _aval(leaf) == expected, leaf
+
+
 def test_args_making_functions_non_finite_is_named(knife):
     # finite args, but a zero mass: H divides by it. Before: "lam0 = [nan]" or a singular matrix.
     with pytest.raises(L.ShapeError, match=r"not finite at the initial point.*args.*zero mass"):

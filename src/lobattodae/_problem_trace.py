@@ -383,16 +383,16 @@ def _abstract_inputs(n: int, args_treedef, args_avals):
 
 
 @functools.lru_cache(maxsize=None)
-def _array_result_type(dtype, weak: bool):
-    """``jnp.result_type`` of an array leaf, which depends only on its dtype and weak type:
-    decided once per pair (4 µs a leaf otherwise, at every call)."""
-    return jnp.result_type(jax.ShapeDtypeStruct((), dtype, weak_type=weak) if weak else np.empty((), dtype))
+def _array_result_type(dtype):
+    """``jnp.result_type`` of an array leaf, which depends only on its dtype (a weak type is always
+    the default one of its kind): decided once per dtype (4 µs a leaf otherwise, at every call)."""
+    return jnp.result_type(np.empty((), dtype))
 
 
 def _aval(x) -> tuple:
     """(shape, dtype as JAX computes with it, whether a Python scalar) of an args leaf."""
     if isinstance(x, (np.ndarray, np.generic, jax.Array)):
-        return np.shape(x), _array_result_type(x.dtype, bool(getattr(x, "weak_type", False))), False
+        return np.shape(x), _array_result_type(x.dtype), False
     return np.shape(x), jnp.result_type(x), True
 
 
