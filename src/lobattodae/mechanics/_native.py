@@ -502,9 +502,9 @@ _LU_C = r"""
    sleigh (benchmarks/RESULTS.md, 2026-11-29 14:50). With gcc on x86-64 Linux and 40 unknowns or
    more the factorisation is compiled a second time for AVX-512 (x86-64-v4) and the processor picks
    its copy when the library is loaded (the library stays portable; without fused multiply-adds, so
-   both copies give the same bits): 30 % less time per factorisation of 87 unknowns, 24 % of 67,
-   6-7 % more at 29 and 36 (dense random matrices, benchmarks/lu_copies.py; RESULTS.md, 2026-11-29
-   18:50; the factorisation has changed since, see newton_assemble and factor). The solve, called once
+   both copies give the same bits): with the factorisation as it is now, 0.59-0.71 times the time
+   at 67 and 87 unknowns, 1.04-1.14 times at 24 and 29 in quiet runs, blurred by the machine's load
+   in between (dense random matrices, benchmarks/lu_copies.py; RESULTS.md, 2026-11-29 21:05). The solve, called once
    per Newton iteration, has the same two copies under the same condition (2-4 % less time per run
    on Andrews' squeezer, 67 and 87 unknowns; below 40 unknowns, where it stays one copy, copies of it
    made the sleigh 3.5 % slower). */
