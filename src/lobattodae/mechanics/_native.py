@@ -400,26 +400,29 @@ static void small_solve(int n, double *a, double *b) {
    positions q_1 = q̃ + D κ, D = M(t, q̃)⁻¹ ψ_q(t, q̃)ᵀ, κ by POSITION_NEWTON_ITERATIONS Newton steps
    κ ← κ − (ψ_q(t, q̃ + Dκ) D)⁻¹ ψ(t, q̃ + Dκ); momenta p_1 = p̃ − μᵀ (μ M⁻¹ μᵀ)⁻¹ φ(t, q_1, p̃) at q_1 */
 static void project_end(double t, double *q, double *p, const double *k) {
-  double mo[NQ*NQ], mu[NM*NQ], mm[NQ*NQ], dd[NH][NQ], psi[NH], jac[NH*NQ], kappa[NH], qq[NQ], jd[NH*NH];
+  /* D = M⁻¹ ψ_qᵀ and W = M⁻¹ μᵀ each in one solve of their columns (row c of D at dd[c*NH]) */
+  double mo[NQ*NQ], mu[NM*NQ], dd[NQ*NH], psi[NH], jac[NH*NQ], kappa[NH], qq[NQ], jd[NH*NH];
   model_mass_mu(t, q, k, mo, mu);
   model_psi(t, q, k, psi, jac);
-  for (int j = 0; j < NH; j++) { memcpy(mm, mo, sizeof mm); memcpy(dd[j], jac + j*NQ, sizeof dd[j]); mass_solve_columns(mm, dd[j], 1); }
+  for (int c = 0; c < NQ; c++) for (int j = 0; j < NH; j++) dd[c*NH + j] = jac[j*NQ + c];
+  mass_solve_columns(mo, dd, NH);
   for (int j = 0; j < NH; j++) kappa[j] = 0.0;
   for (int it = 0; it < POSITION_NEWTON_ITERATIONS; it++) {
-    for (int c = 0; c < NQ; c++) { double x = 0.0; for (int j = 0; j < NH; j++) x += dd[j][c]*kappa[j]; qq[c] = q[c] + x; }
+    for (int c = 0; c < NQ; c++) { double x = 0.0; for (int j = 0; j < NH; j++) x += dd[c*NH + j]*kappa[j]; qq[c] = q[c] + x; }
     model_psi(t, qq, k, psi, jac);
     for (int a = 0; a < NH; a++) for (int b = 0; b < NH; b++) {
-      double x = 0.0; for (int c = 0; c < NQ; c++) x += jac[a*NQ + c]*dd[b][c]; jd[a*NH + b] = x; }
+      double x = 0.0; for (int c = 0; c < NQ; c++) x += jac[a*NQ + c]*dd[c*NH + b]; jd[a*NH + b] = x; }
     small_solve(NH, jd, psi);
     for (int j = 0; j < NH; j++) kappa[j] -= psi[j];
   }
-  for (int c = 0; c < NQ; c++) { double x = 0.0; for (int j = 0; j < NH; j++) x += dd[j][c]*kappa[j]; q[c] += x; }
-  double phi[NM], w[NM][NQ], sm[NM*NM];
+  for (int c = 0; c < NQ; c++) { double x = 0.0; for (int j = 0; j < NH; j++) x += dd[c*NH + j]*kappa[j]; q[c] += x; }
+  double phi[NM], w[NQ*NM], sm[NM*NM];
   model_mass_mu(t, q, k, mo, mu);
   model_phi(t, q, p, k, phi);
-  for (int j = 0; j < NM; j++) { memcpy(mm, mo, sizeof mm); memcpy(w[j], mu + j*NQ, sizeof w[j]); mass_solve_columns(mm, w[j], 1); }
+  for (int c = 0; c < NQ; c++) for (int j = 0; j < NM; j++) w[c*NM + j] = mu[j*NQ + c];
+  mass_solve_columns(mo, w, NM);
   for (int a = 0; a < NM; a++) for (int b = 0; b < NM; b++) {
-    double x = 0.0; for (int c = 0; c < NQ; c++) x += mu[a*NQ + c]*w[b][c]; sm[a*NM + b] = x; }
+    double x = 0.0; for (int c = 0; c < NQ; c++) x += mu[a*NQ + c]*w[c*NM + b]; sm[a*NM + b] = x; }
   spd_solve(NM, sm, phi);
   for (int c = 0; c < NQ; c++) { double x = 0.0; for (int j = 0; j < NM; j++) x += mu[j*NQ + c]*phi[j]; p[c] -= x; }
 }
