@@ -9,7 +9,13 @@ evaluations) of the run:
 * ``sleigh``: s = 6, adaptive, T = 1000;
 * ``andrews``: Andrews' squeezer (the external test set), s = 5, adaptive, to t = 0.03;
 * ``crank``: the flexible slider crank (the external test set), s = 6, adaptive, to t = 0.1;
-* ``bicycle``: the Whipple bicycle at 5 m/s, s = 4, 1000 constant steps over 10 s.
+* ``bicycle``: the Whipple bicycle at 5 m/s, s = 4, 1000 constant steps over 10 s;
+* ``native-sleigh``: the sleigh as a ``lobattodae.mechanics`` model natively
+  (``model.native(5)``), adaptive, T = 1000; ``native-andrews``: Andrews' squeezer's Lagrangian
+  twin natively (``model.native(4)``), adaptive, to t = 0.03;
+* ``native-sleigh-start``, ``native-andrews-start``: the same runs over one step (T = 1e-3,
+  1e-7): what every ``solve`` costs before and after its steps (validation, the compiled call,
+  the ``Solution``).
 
 Every case runs in a new interpreter with one XLA thread, pinned with this process to one CPU
 (``--pin-cpu``); ``--src DIR`` (repeatable) imports another checkout's ``src``, alternating, so
@@ -37,6 +43,19 @@ def build(case):
         import importlib
         S = importlib.import_module("testset." + case).build()
         return S.problem, S.q0, S.p0, S.args, S.t_span, {"andrews": 5, "crank": 6}[case], dict(rtol=1e-8, atol=1e-8)
+    if case.startswith("native-"):
+        from native_step import pairs
+        if case.startswith("native-andrews"):
+            from testset import andrews
+            S = andrews.build()
+            model, args = andrews.PROBLEM.mechanics()
+            q0, p0, t_end, s = S.q0, S.p0, 0.03, 4
+        else:
+            ex, model, args = pairs()["sleigh"]
+            q0, p0, t_end, s = ex.q0, ex.p0, 1000.0, 5
+        if case.endswith("-start"):
+            t_end = 1e-7 if "andrews" in case else 1e-3
+        return model.problem, q0, p0, args, (0.0, t_end), model.native(s), dict(rtol=1e-8, atol=1e-8)
     if case == "bicycle":
         from lobattodae.mechanics import bicycle as bike
         model = bike.whipple_bicycle()
@@ -49,7 +68,8 @@ def build(case):
 
 case, repeats = sys.argv[1], int(sys.argv[2])
 problem, q0, p0, args, span, s, kw = build(case)
-method = L.LobattoIIIAIIIB(stages=s)
+method = L.LobattoIIIAIIIB(stages=s) if isinstance(s, int) else s  # or a model's native integrator
+s = method.stages
 run = lambda: L.solve(problem, method, span, q0, p0, args=args, save_every="final", **kw)  # noqa: E731
 sol = run()
 times = []
@@ -61,7 +81,8 @@ st = sol.stats
 print_result({"s": s, "ms": 1e3 * min(times), "steps": int(st["n_steps"]), "rejected": int(st["n_rejected"]),
               "newton": int(st["n_newton"]), "matrices": int(st["n_jacobians"])})
 """
-CASES = ("knife-edge", "falling-disk", "sleigh", "andrews", "crank", "bicycle")
+CASES = ("knife-edge", "falling-disk", "sleigh", "andrews", "crank", "bicycle", "native-sleigh", "native-andrews",
+         "native-sleigh-start", "native-andrews-start")
 
 
 def main() -> None:
@@ -79,7 +100,7 @@ def main() -> None:
                 r = child_result(python_child(CHILD, case, str(opts.repeats)), env, timeout=1200)
                 if "error" in r:
                     sys.exit(f"{case} with {src}: {r['error']}")
-                print(f"{case:<13} {src:<20} s={r['s']} run {r['ms']:8.1f} ms  steps {r['steps']} rejected "
+                print(f"{case:<21} {src:<20} s={r['s']} run {r['ms']:8.2f} ms  steps {r['steps']} rejected "
                       f"{r['rejected']} newton {r['newton']} matrices {r['matrices']}", flush=True)
 
 
