@@ -51,6 +51,7 @@ from lib.output import fmt, log, md_table, merged, results_path, run_meta, write
 from lib.sweeps import half_decades, time_at
 from lib.timing import best_of
 from testset import PROBLEMS, error
+from testset_wp import _output_plan
 
 TARGET = 1e-8
 #: Problems of the test set with a ``lobattodae.mechanics`` model; the slider crank (1.3 s per
@@ -125,14 +126,6 @@ def _admit_replays():
 
 
 # ------------------------------------------------------------------------------------ the sweeps
-def _output(entry, setup):
-    """``solve``'s output keywords and the times the error is measured at (as testset_wp.py)."""
-    t0, t1 = map(float, setup.t_span)
-    ts = sorted(float(t) for t in entry.t_ref if min(t0, t1) < t <= max(t0, t1))
-    final = len(ts) == 1 and math.isclose(ts[0], t1, rel_tol=1e-12, abs_tol=1e-12)
-    return ({"save_every": "final"} if final else {"t_eval": ts}), ts
-
-
 def run_problem(name: str, stages, tols, dopri8_tols, repeats: int) -> dict:
     """Every run of ``name`` once (compiling; errors and counters), then ``repeats`` rounds in
     which each run is timed once, in the same order: each time is the best of its rounds, and the
@@ -140,7 +133,8 @@ def run_problem(name: str, stages, tols, dopri8_tols, repeats: int) -> dict:
     entry = PROBLEMS[name]
     setup = entry.build()
     model, args = entry.mechanics()
-    kw, ts = _output(entry, setup)
+    ts, final = _output_plan(entry, setup)  # the times the error is measured at, as testset_wp.py
+    kw = {"save_every": "final"} if final else {"t_eval": ts}
     p0 = setup.p0 if entry.mechanics_momenta is None else entry.mechanics_momenta[0](setup.t_span[0], setup.q0,
                                                                                      setup.p0)
 

@@ -44,13 +44,13 @@ def build(case):
         S = importlib.import_module("testset." + case).build()
         return S.problem, S.q0, S.p0, S.args, S.t_span, {"andrews": 5, "crank": 6}[case], dict(rtol=1e-8, atol=1e-8)
     if case.startswith("native-"):
-        from native_step import pairs
         if case.startswith("native-andrews"):
             from testset import andrews
             S = andrews.build()
             model, args = andrews.PROBLEM.mechanics()
             q0, p0, t_end, s = S.q0, S.p0, 0.03, 4
         else:
+            from native_step import pairs
             ex, model, args = pairs()["sleigh"]
             q0, p0, t_end, s = ex.q0, ex.p0, 1000.0, 5
         if case.endswith("-start"):
